@@ -1,0 +1,94 @@
+//! Simulator settings (DESIGN §3) with the paper's defaults.
+
+use serde::{Deserialize, Serialize};
+
+use crate::error::{Result, SimError};
+
+/// What an environment returns as its observation.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize, clap::ValueEnum)]
+#[serde(rename_all = "snake_case")]
+pub enum ObsMode {
+    /// First-person greyscale frames (the paper's setting; the default).
+    #[default]
+    Pixels,
+    /// State observation for fast algorithm tests and debugging only: the goal's
+    /// position in the body frame, heading, head yaw and the map rewards around
+    /// the agent (see [`crate::state_obs`]). Not the paper's task.
+    StateDebug,
+}
+
+/// Settings of the pedestrian simulator. Defaults are the paper's (§IV) and DESIGN §3.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct SimConfig {
+    /// Seconds per decision step. Paper: 0.25.
+    pub dt: f32,
+    /// Episode length limit in decision steps (truncation, bootstrapped by learners).
+    /// Paper: 8000 in training, 2000 in validation.
+    pub t_max: u32,
+    /// Top walking speed in m/s; action a₀ ∈ [−1, 1] maps linearly to [0, max_speed]. Paper: 2.
+    pub max_speed: f32,
+    /// Top yaw rate in degrees/s; a₁ ∈ [−1, 1] maps to [−max_yaw_rate, max_yaw_rate]. Paper: 80.
+    pub max_yaw_rate_deg: f32,
+    /// Head-yaw range in degrees: a₂ ∈ [−1, 1] sets the head's yaw offset relative
+    /// to the body to a₂ · max_head_yaw (absolute offset, not a rate). DESIGN: 60.
+    pub max_head_yaw_deg: f32,
+    /// Capsule radius of the pedestrian in metres.
+    pub agent_radius: f32,
+    /// Capsule height of the pedestrian in metres.
+    pub agent_height: f32,
+    /// Camera height above the ground in metres.
+    pub eye_height: f32,
+    /// Horizontal (and, with square images, vertical) field of view in degrees. Paper: 135.
+    pub fov_deg: f32,
+    /// Side of the square greyscale observation in pixels (84 in the paper; 42 for reduced presets).
+    pub image_size: u32,
+    /// Observation mode.
+    pub obs_mode: ObsMode,
+    /// Randomise brightness, contrast and haze of the rendering per episode (from the
+    /// episode seed). Off by default, as in the paper.
+    pub domain_randomization: bool,
+}
+
+impl Default for SimConfig {
+    fn default() -> Self {
+        SimConfig {
+            dt: 0.25,
+            t_max: 8000,
+            max_speed: 2.0,
+            max_yaw_rate_deg: 80.0,
+            max_head_yaw_deg: 60.0,
+            agent_radius: 0.3,
+            agent_height: 1.8,
+            eye_height: 1.6,
+            fov_deg: 135.0,
+            image_size: 84,
+            obs_mode: ObsMode::Pixels,
+            domain_randomization: false,
+        }
+    }
+}
+
+impl SimConfig {
+    /// Check every field's range; the error names the field.
+    pub fn validate(&self) -> Result<()> {
+        fn check(ok: bool, field: &'static str, value: impl ToString, message: &str) -> Result<()> {
+            if ok {
+                Ok(())
+            } else {
+                Err(SimError::Config { field, value: value.to_string(), message: message.to_string() })
+            }
+        }
+        check(self.dt > 0.0 && self.dt <= 5.0, "dt", self.dt, "must lie in (0, 5] seconds")?;
+        check(self.t_max >= 1, "t_max", self.t_max, "must be at least 1")?;
+        check(self.max_speed > 0.0 && self.max_speed <= 20.0, "max_speed", self.max_speed, "must lie in (0, 20] m/s")?;
+        check((0.0..=720.0).contains(&self.max_yaw_rate_deg), "max_yaw_rate_deg", self.max_yaw_rate_deg, "must lie in [0, 720]")?;
+        check((0.0..=90.0).contains(&self.max_head_yaw_deg), "max_head_yaw_deg", self.max_head_yaw_deg, "must lie in [0, 90]")?;
+        check(self.agent_radius > 0.05 && self.agent_radius < 1.0, "agent_radius", self.agent_radius, "must lie in (0.05, 1) m")?;
+        check(self.agent_height > 2.0 * self.agent_radius, "agent_height", self.agent_height, "must exceed twice the radius")?;
+        check(self.eye_height > 0.1 && self.eye_height < 3.0, "eye_height", self.eye_height, "must lie in (0.1, 3) m")?;
+        check(self.fov_deg > 10.0 && self.fov_deg < 170.0, "fov_deg", self.fov_deg, "must lie in (10, 170) degrees")?;
+        check((8..=1024).contains(&self.image_size), "image_size", self.image_size, "must lie in [8, 1024] pixels")?;
+        Ok(())
+    }
+}

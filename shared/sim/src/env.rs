@@ -1,0 +1,269 @@
+//! Gymnasium-style environments: [`VecEnv`] (M pedestrians, all views rendered in
+//! one GPU submission) and [`PedestrianEnv`] (one pedestrian, the [`Env`] trait).
+//!
+//! Invariant: an environment is stepped only between a `reset` and the end of its
+//! episode ([`SimError::NeedsReset`] otherwise). There is no auto-reset: the caller
+//! (the actor) asks the curriculum for the next task and calls `reset` itself.
+//!
+//! Usage loop of a vectorized actor:
+//! ```no_run
+//! # use std::sync::Arc;
+//! # use pednav_sim::{Scene, SimConfig, SimWorld, VecEnv, BackendChoice};
+//! # fn main() -> pednav_sim::Result<()> {
+//! let world = Arc::new(SimWorld::new(Scene::reference(), SimConfig::default())?);
+//! let mut envs = VecEnv::new(world.clone(), 16, BackendChoice::Auto)?;
+//! for i in 0..16 { envs.reset(i, world.scene.first_task(), i as u64)?; }
+//! let actions = vec![[1.0, 0.0, 0.0]; 16];
+//! loop {
+//!     let steps = envs.step(&actions)?.to_vec();
+//!     let frames = envs.render()?;            // one submission, one readback
+//!     let mut buf = vec![0u8; 84 * 84];
+//!     frames.copy_frame(0, &mut buf);         // the only copy of the frame
+//!     drop(frames);
+//!     for (i, t) in steps.iter().enumerate() {
+//!         if t.terminated || t.truncated { envs.reset(i, world.scene.first_task(), 1000 + i as u64)?; }
+//!     }
+//! #   break;
+//! }
+//! # Ok(()) }
+//! ```
+
+use std::sync::Arc;
+
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+
+use crate::config::ObsMode;
+use crate::error::{Result, SimError};
+use crate::pedestrian::{Action, Pedestrian, Transition};
+use crate::render::{BackendChoice, CameraView, Frames, Look, Renderer, RendererConfig};
+use crate::scene::{Pose, RegionKind};
+use crate::state_obs::{STATE_OBS_DIM, state_observation};
+use crate::world::SimWorld;
+
+/// M pedestrians sharing one world and one renderer.
+pub struct VecEnv {
+    world: Arc<SimWorld>,
+    peds: Vec<Pedestrian>,
+    looks: Vec<Look>,
+    renderer: Option<Renderer>,
+    transitions: Vec<Transition>,
+    cameras: Vec<CameraView>,
+}
+
+impl VecEnv {
+    /// Create `num_envs` environments; in pixel mode also the renderer (one atlas for all views).
+    pub fn new(world: Arc<SimWorld>, num_envs: usize, backend: BackendChoice) -> Result<VecEnv> {
+        if num_envs == 0 {
+            return Err(SimError::Config { field: "num_envs", value: "0".into(), message: "must be at least 1".into() });
+        }
+        let renderer = match world.config.obs_mode {
+            ObsMode::Pixels => Some(Renderer::new(
+                &world.scene,
+                &world.map,
+                RendererConfig {
+                    image_size: world.config.image_size,
+                    fov_deg: world.config.fov_deg,
+                    max_views: num_envs,
+                    backend,
+                },
+            )?),
+            ObsMode::StateDebug => None,
+        };
+        Ok(VecEnv {
+            peds: vec![Pedestrian::default(); num_envs],
+            looks: vec![Look::default(); num_envs],
+            renderer,
+            transitions: Vec::with_capacity(num_envs),
+            cameras: Vec::with_capacity(num_envs),
+            world,
+        })
+    }
+
+    /// Number of environments.
+    pub fn num_envs(&self) -> usize {
+        self.peds.len()
+    }
+
+    /// The shared world.
+    pub fn world(&self) -> &Arc<SimWorld> {
+        &self.world
+    }
+
+    /// The renderer (pixel mode only).
+    pub fn renderer(&self) -> Option<&Renderer> {
+        self.renderer.as_ref()
+    }
+
+    /// Start a new episode in environment `env` at `task`; `seed` drives the
+    /// episode's randomness (the rendering look when domain randomisation is on).
+    pub fn reset(&mut self, env: usize, task: Pose, seed: u64) -> Result<()> {
+        self.world.scene.check_task(task)?;
+        self.peds[env].reset(task);
+        self.looks[env] = if self.world.config.domain_randomization {
+            let mut rng = ChaCha8Rng::seed_from_u64(seed);
+            Look {
+                brightness: rng.random_range(-0.1..0.1),
+                contrast: rng.random_range(0.8..1.2),
+                haze: rng.random_range(0.002..0.008),
+            }
+        } else {
+            Look::default()
+        };
+        Ok(())
+    }
+
+    /// Step every environment with its action. All must be inside an episode.
+    pub fn step(&mut self, actions: &[Action]) -> Result<&[Transition]> {
+        if actions.len() != self.peds.len() {
+            return Err(SimError::ActionCount { expected: self.peds.len(), got: actions.len() });
+        }
+        for (env, (p, a)) in self.peds.iter().zip(actions).enumerate() {
+            if p.done {
+                return Err(SimError::NeedsReset { env });
+            }
+            if !a.iter().all(|v| v.is_finite()) {
+                return Err(SimError::NonFiniteAction { env, action: *a });
+            }
+        }
+        self.transitions.clear();
+        for (p, a) in self.peds.iter_mut().zip(actions) {
+            self.transitions.push(p.step(*a, &self.world));
+        }
+        Ok(&self.transitions)
+    }
+
+    /// The pedestrian of environment `env`.
+    pub fn pedestrian(&self, env: usize) -> &Pedestrian {
+        &self.peds[env]
+    }
+
+    /// Camera of environment `env` at its current pose.
+    pub fn camera(&self, env: usize) -> CameraView {
+        let p = &self.peds[env];
+        CameraView { x: p.pose.x, y: p.pose.y, z: self.world.config.eye_height, yaw: p.camera_yaw(), look: self.looks[env] }
+    }
+
+    /// Render the current view of every environment: one submission, one readback.
+    /// Errors in state mode, which has no renderer.
+    pub fn render(&mut self) -> Result<Frames<'_>> {
+        self.cameras.clear();
+        for env in 0..self.peds.len() {
+            let c = self.camera(env);
+            self.cameras.push(c);
+        }
+        let renderer = self.renderer.as_mut().ok_or(SimError::Config {
+            field: "obs_mode",
+            value: "state_debug".into(),
+            message: "rendering needs obs_mode = \"pixels\"".into(),
+        })?;
+        Ok(renderer.render(&self.cameras)?)
+    }
+
+    /// State observation of environment `env` (any mode).
+    pub fn state_obs(&self, env: usize) -> [f32; STATE_OBS_DIM] {
+        state_observation(&self.world, &self.peds[env])
+    }
+}
+
+/// Extra information of a reset or step.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Info {
+    /// Pose after the step (or at reset).
+    pub pose: Pose,
+    /// Region under the agent.
+    pub region: RegionKind,
+    /// Whether the step collided.
+    pub collided: bool,
+    /// Steps taken in the episode.
+    pub step: u32,
+}
+
+/// An observation of [`PedestrianEnv`].
+#[derive(Debug, Clone, PartialEq)]
+pub enum Observation {
+    /// `image_size²` greyscale bytes, row-major, top row first.
+    Pixels(Vec<u8>),
+    /// The state-debug vector.
+    State([f32; STATE_OBS_DIM]),
+}
+
+/// Result of [`Env::step`].
+#[derive(Debug, Clone, PartialEq)]
+pub struct StepOutcome<O> {
+    /// Observation after the step.
+    pub obs: O,
+    /// Reward of the step.
+    pub reward: f32,
+    /// Reached the goal.
+    pub terminated: bool,
+    /// Hit `t_max`.
+    pub truncated: bool,
+    /// Extra information.
+    pub info: Info,
+}
+
+/// The Gymnasium-style single-environment interface.
+///
+/// ```text
+/// let (obs, info) = env.reset(task, seed)?;
+/// loop {
+///     let out = env.step(policy(&obs))?;
+///     if out.terminated || out.truncated { break }
+/// }
+/// ```
+pub trait Env {
+    /// Observation type.
+    type Obs;
+    /// Start an episode at `task`.
+    fn reset(&mut self, task: Pose, seed: u64) -> Result<(Self::Obs, Info)>;
+    /// Advance one decision step.
+    fn step(&mut self, action: Action) -> Result<StepOutcome<Self::Obs>>;
+}
+
+/// One pedestrian (a [`VecEnv`] of one).
+pub struct PedestrianEnv {
+    inner: VecEnv,
+}
+
+impl PedestrianEnv {
+    /// Create a single environment.
+    pub fn new(world: Arc<SimWorld>, backend: BackendChoice) -> Result<PedestrianEnv> {
+        Ok(PedestrianEnv { inner: VecEnv::new(world, 1, backend)? })
+    }
+
+    /// The underlying vectorized env.
+    pub fn inner(&self) -> &VecEnv {
+        &self.inner
+    }
+
+    fn observe(&mut self) -> Result<Observation> {
+        Ok(match self.inner.world.config.obs_mode {
+            ObsMode::Pixels => Observation::Pixels(self.inner.render()?.frame(0)),
+            ObsMode::StateDebug => Observation::State(self.inner.state_obs(0)),
+        })
+    }
+}
+
+impl Env for PedestrianEnv {
+    type Obs = Observation;
+
+    fn reset(&mut self, task: Pose, seed: u64) -> Result<(Observation, Info)> {
+        self.inner.reset(0, task, seed)?;
+        let p = *self.inner.pedestrian(0);
+        let info = Info { pose: p.pose, region: self.inner.world.map.kind_at(p.pose.x, p.pose.y), collided: false, step: 0 };
+        Ok((self.observe()?, info))
+    }
+
+    fn step(&mut self, action: Action) -> Result<StepOutcome<Observation>> {
+        let t = self.inner.step(&[action])?[0];
+        let obs = self.observe()?;
+        Ok(StepOutcome {
+            obs,
+            reward: t.reward,
+            terminated: t.terminated,
+            truncated: t.truncated,
+            info: Info { pose: t.pose, region: t.region, collided: t.collided, step: t.step },
+        })
+    }
+}

@@ -1,0 +1,38 @@
+//! # pednav-sim — the built-in urban crossing simulator
+//!
+//! Replaces CARLA for pednav (DESIGN §3): a scene described as data
+//! ([`Scene`], the reference corner in `scenes/corner.toml`), the reward map
+//! derived from it ([`RegionMap`]), a rapier3d kinematic pedestrian
+//! ([`physics::StaticWorld`], [`Pedestrian`]), a headless wgpu renderer of
+//! first-person 84×84 greyscale views that draws all views of a process in one
+//! submission ([`render::Renderer`]), Gymnasium-style environments ([`VecEnv`],
+//! [`PedestrianEnv`], [`Env`]), the oracle planner ([`oracle::Oracle`]) and the
+//! pictures a person looks at ([`draw`]).
+//!
+//! Everything is deterministic: the only randomness (optional domain
+//! randomisation of the look) comes from the seed passed to `reset`.
+
+#![warn(missing_docs)]
+
+pub mod config;
+pub mod draw;
+pub mod env;
+pub mod error;
+pub mod oracle;
+pub mod pedestrian;
+pub mod physics;
+pub mod region_map;
+pub mod render;
+pub mod scene;
+pub mod state_obs;
+pub mod world;
+
+pub use config::{ObsMode, SimConfig};
+pub use env::{Env, Info, Observation, PedestrianEnv, StepOutcome, VecEnv};
+pub use error::{Result, SimError};
+pub use pedestrian::{Action, Pedestrian, Transition, command_of};
+pub use region_map::RegionMap;
+pub use render::{BackendChoice, CameraView, Frames, Look, Renderer, RendererConfig};
+pub use scene::{Pose, RegionKind, Scene};
+pub use state_obs::STATE_OBS_DIM;
+pub use world::SimWorld;

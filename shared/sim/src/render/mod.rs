@@ -1,0 +1,589 @@
+//! Headless wgpu renderer of first-person greyscale views.
+//!
+//! All views of a call are drawn into one atlas texture (views tiled in a grid,
+//! each through its own viewport and dynamic-offset camera uniform) in **one
+//! submission**, copied into **one** readback buffer (rows padded to 256 bytes), and
+//! mapped once. [`Frames`] hands out each view's rows straight from the mapped
+//! buffer, so a consumer (an IPC sample, a PNG encoder) copies each frame exactly once.
+//!
+//! Invariant: while a [`Frames`] is alive the readback buffer stays mapped and
+//! `render` cannot be called (it borrows the renderer mutably); dropping `Frames`
+//! unmaps it.
+//!
+//! Adapters: a real GPU is preferred (Vulkan, then GL); without one, Mesa's CPU
+//! rasterisers work — GL through EGL (llvmpipe, no install on most Linux images) or
+//! Vulkan through lavapipe (`apt-get install -y mesa-vulkan-drivers`).
+
+mod ground;
+pub mod mesh;
+
+use std::sync::Arc;
+
+use glam::{Mat4, Vec3};
+use wgpu::util::DeviceExt;
+
+use crate::region_map::RegionMap;
+use crate::scene::Scene;
+
+pub use mesh::SKY_SHADE;
+
+/// Errors of the renderer.
+#[derive(Debug, thiserror::Error)]
+pub enum RenderError {
+    /// No graphics adapter of the requested backends exists.
+    #[error(
+        "no graphics adapter found for backend `{backend}` (tried: {tried}). On a machine without a GPU install Mesa: \
+         `apt-get install -y libegl1 libegl-mesa0 libgl1-mesa-dri` (OpenGL through EGL, llvmpipe) or \
+         `apt-get install -y mesa-vulkan-drivers libvulkan1` (Vulkan, lavapipe); with a GPU, install its driver"
+    )]
+    NoAdapter {
+        /// The backend choice that was asked for.
+        backend: String,
+        /// The wgpu backends that were searched.
+        tried: String,
+    },
+    /// The adapter refused to create a device.
+    #[error("cannot create a device on adapter {adapter}: {message}")]
+    Device {
+        /// The adapter's name and backend.
+        adapter: String,
+        /// wgpu's message.
+        message: String,
+    },
+    /// More views were asked for than the renderer was built for.
+    #[error("asked to render {asked} views, but the renderer was built for at most {max}")]
+    TooManyViews {
+        /// Views asked for.
+        asked: usize,
+        /// Capacity.
+        max: usize,
+    },
+    /// The atlas would exceed the adapter's texture size limit.
+    #[error("an atlas of {views} views of {size}×{size} needs {needed} pixels per side, over the adapter limit {limit}")]
+    AtlasTooLarge {
+        /// Number of views.
+        views: usize,
+        /// View side in pixels.
+        size: u32,
+        /// Needed atlas side.
+        needed: u32,
+        /// Adapter limit.
+        limit: u32,
+    },
+    /// Mapping the readback buffer or waiting for the device failed.
+    #[error("GPU readback failed: {0}")]
+    Readback(String),
+}
+
+/// Which wgpu backend to use.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Serialize, serde::Deserialize, clap::ValueEnum)]
+#[serde(rename_all = "snake_case")]
+pub enum BackendChoice {
+    /// Best adapter found: a real GPU first, then Mesa's CPU rasterisers.
+    #[default]
+    Auto,
+    /// Vulkan only (a GPU driver, or lavapipe).
+    Vulkan,
+    /// OpenGL ES through EGL only (a GPU driver, or llvmpipe).
+    Gl,
+}
+
+/// Settings of a renderer.
+#[derive(Debug, Clone, PartialEq)]
+pub struct RendererConfig {
+    /// Side of each square view in pixels.
+    pub image_size: u32,
+    /// Horizontal (= vertical) field of view in degrees.
+    pub fov_deg: f32,
+    /// Most views rendered in one call (atlas capacity).
+    pub max_views: usize,
+    /// Backend choice.
+    pub backend: BackendChoice,
+}
+
+/// Per-view appearance (domain randomisation); [`Look::default`] is the plain scene.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Look {
+    /// Added to the grey level after contrast.
+    pub brightness: f32,
+    /// Contrast gain around mid-grey.
+    pub contrast: f32,
+    /// Haze density per metre.
+    pub haze: f32,
+}
+
+impl Default for Look {
+    fn default() -> Self {
+        Look { brightness: 0.0, contrast: 1.0, haze: 0.004 }
+    }
+}
+
+/// One camera to render.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct CameraView {
+    /// Camera x.
+    pub x: f32,
+    /// Camera y.
+    pub y: f32,
+    /// Camera height above ground.
+    pub z: f32,
+    /// Camera yaw (body yaw + head yaw), radians, 0 = east.
+    pub yaw: f32,
+    /// Appearance.
+    pub look: Look,
+}
+
+/// Uniform block per view (std140-compatible).
+#[repr(C)]
+#[derive(Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
+struct ViewUniform {
+    view_proj: [[f32; 4]; 4],
+    eye: [f32; 4],
+    look: [f32; 4],
+}
+
+const NEAR: f32 = 0.05;
+const FAR: f32 = 1500.0;
+
+/// The headless renderer.
+pub struct Renderer {
+    device: wgpu::Device,
+    queue: wgpu::Queue,
+    pipeline: wgpu::RenderPipeline,
+    bind_group: wgpu::BindGroup,
+    uniforms: wgpu::Buffer,
+    uniform_stride: u64,
+    vertices: wgpu::Buffer,
+    vertex_count: u32,
+    color_view: wgpu::TextureView,
+    color: wgpu::Texture,
+    depth_view: wgpu::TextureView,
+    readback: wgpu::Buffer,
+    padded_bpr: u32,
+    cols: u32,
+    config: RendererConfig,
+    proj: Mat4,
+    adapter_info: wgpu::AdapterInfo,
+    staging: Vec<u8>,
+}
+
+fn device_rank(info: &wgpu::AdapterInfo) -> (u8, u8) {
+    let kind = match info.device_type {
+        wgpu::DeviceType::DiscreteGpu => 0,
+        wgpu::DeviceType::IntegratedGpu => 1,
+        wgpu::DeviceType::VirtualGpu => 2,
+        wgpu::DeviceType::Cpu => 3,
+        wgpu::DeviceType::Other => 4,
+    };
+    let backend = match info.backend {
+        wgpu::Backend::Vulkan => 0,
+        wgpu::Backend::Gl => 1,
+        _ => 2,
+    };
+    (kind, backend)
+}
+
+/// Pick the best adapter for a backend choice.
+fn pick_adapter(choice: BackendChoice) -> Result<wgpu::Adapter, RenderError> {
+    let backends = match choice {
+        BackendChoice::Auto => wgpu::Backends::VULKAN | wgpu::Backends::GL,
+        BackendChoice::Vulkan => wgpu::Backends::VULKAN,
+        BackendChoice::Gl => wgpu::Backends::GL,
+    };
+    let mut desc = wgpu::InstanceDescriptor::new_without_display_handle();
+    desc.backends = backends;
+    let instance = wgpu::Instance::new(desc);
+    let mut adapters = pollster::block_on(instance.enumerate_adapters(backends));
+    adapters.sort_by_key(|a| device_rank(&a.get_info()));
+    adapters.into_iter().next().ok_or_else(|| RenderError::NoAdapter {
+        backend: format!("{choice:?}").to_lowercase(),
+        tried: format!("{backends:?}"),
+    })
+}
+
+impl Renderer {
+    /// Build the renderer for a scene: pick an adapter, upload the mesh and the
+    /// ground texture, allocate the atlas for `config.max_views` views.
+    pub fn new(scene: &Scene, map: &RegionMap, config: RendererConfig) -> Result<Renderer, RenderError> {
+        let adapter = pick_adapter(config.backend)?;
+        let adapter_info = adapter.get_info();
+        let limits = adapter.limits();
+        let (device, queue) = pollster::block_on(adapter.request_device(&wgpu::DeviceDescriptor {
+            label: Some("pednav"),
+            required_limits: limits.clone(),
+            ..Default::default()
+        }))
+        .map_err(|e| RenderError::Device { adapter: describe(&adapter_info), message: e.to_string() })?;
+
+        let size = config.image_size;
+        let views = config.max_views.max(1);
+        let cols = (views as f64).sqrt().ceil() as u32;
+        let rows = (views as u32).div_ceil(cols);
+        let (aw, ah) = (cols * size, rows * size);
+        let limit = limits.max_texture_dimension_2d;
+        if aw > limit || ah > limit {
+            return Err(RenderError::AtlasTooLarge { views, size, needed: aw.max(ah), limit });
+        }
+
+        let ground = ground::bake(scene, map);
+        let ground_tex = device.create_texture_with_data(
+            &queue,
+            &wgpu::TextureDescriptor {
+                label: Some("ground"),
+                size: wgpu::Extent3d { width: ground.width, height: ground.height, depth_or_array_layers: 1 },
+                mip_level_count: ground.mip_levels,
+                sample_count: 1,
+                dimension: wgpu::TextureDimension::D2,
+                format: wgpu::TextureFormat::R8Unorm,
+                usage: wgpu::TextureUsages::TEXTURE_BINDING,
+                view_formats: &[],
+            },
+            wgpu::util::TextureDataOrder::LayerMajor,
+            &ground.data,
+        );
+        let ground_view = ground_tex.create_view(&Default::default());
+        let sampler = device.create_sampler(&wgpu::SamplerDescriptor {
+            label: Some("ground"),
+            address_mode_u: wgpu::AddressMode::ClampToEdge,
+            address_mode_v: wgpu::AddressMode::ClampToEdge,
+            mag_filter: wgpu::FilterMode::Linear,
+            min_filter: wgpu::FilterMode::Linear,
+            mipmap_filter: wgpu::MipmapFilterMode::Linear,
+            anisotropy_clamp: 8,
+            ..Default::default()
+        });
+
+        let mesh = mesh::build(scene, map);
+        let vertices = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+            label: Some("scene mesh"),
+            contents: bytemuck::cast_slice(&mesh),
+            usage: wgpu::BufferUsages::VERTEX,
+        });
+
+        let align = limits.min_uniform_buffer_offset_alignment as u64;
+        let uniform_stride = (std::mem::size_of::<ViewUniform>() as u64).div_ceil(align) * align;
+        let uniforms = device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("view uniforms"),
+            size: uniform_stride * views as u64,
+            usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        });
+
+        let layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+            label: Some("view"),
+            entries: &[
+                wgpu::BindGroupLayoutEntry {
+                    binding: 0,
+                    visibility: wgpu::ShaderStages::VERTEX_FRAGMENT,
+                    ty: wgpu::BindingType::Buffer {
+                        ty: wgpu::BufferBindingType::Uniform,
+                        has_dynamic_offset: true,
+                        min_binding_size: wgpu::BufferSize::new(std::mem::size_of::<ViewUniform>() as u64),
+                    },
+                    count: None,
+                },
+                wgpu::BindGroupLayoutEntry {
+                    binding: 1,
+                    visibility: wgpu::ShaderStages::FRAGMENT,
+                    ty: wgpu::BindingType::Texture {
+                        sample_type: wgpu::TextureSampleType::Float { filterable: true },
+                        view_dimension: wgpu::TextureViewDimension::D2,
+                        multisampled: false,
+                    },
+                    count: None,
+                },
+                wgpu::BindGroupLayoutEntry {
+                    binding: 2,
+                    visibility: wgpu::ShaderStages::FRAGMENT,
+                    ty: wgpu::BindingType::Sampler(wgpu::SamplerBindingType::Filtering),
+                    count: None,
+                },
+            ],
+        });
+        let bind_group = device.create_bind_group(&wgpu::BindGroupDescriptor {
+            label: Some("view"),
+            layout: &layout,
+            entries: &[
+                wgpu::BindGroupEntry {
+                    binding: 0,
+                    resource: wgpu::BindingResource::Buffer(wgpu::BufferBinding {
+                        buffer: &uniforms,
+                        offset: 0,
+                        size: wgpu::BufferSize::new(std::mem::size_of::<ViewUniform>() as u64),
+                    }),
+                },
+                wgpu::BindGroupEntry { binding: 1, resource: wgpu::BindingResource::TextureView(&ground_view) },
+                wgpu::BindGroupEntry { binding: 2, resource: wgpu::BindingResource::Sampler(&sampler) },
+            ],
+        });
+
+        let shader = device.create_shader_module(wgpu::ShaderModuleDescriptor {
+            label: Some("pednav shader"),
+            source: wgpu::ShaderSource::Wgsl(include_str!("shader.wgsl").into()),
+        });
+        let pipeline_layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
+            label: Some("pednav"),
+            bind_group_layouts: &[Some(&layout)],
+            ..Default::default()
+        });
+        let pipeline = device.create_render_pipeline(&wgpu::RenderPipelineDescriptor {
+            label: Some("pednav"),
+            layout: Some(&pipeline_layout),
+            vertex: wgpu::VertexState {
+                module: &shader,
+                entry_point: Some("vs_main"),
+                compilation_options: Default::default(),
+                buffers: &[Some(wgpu::VertexBufferLayout {
+                    array_stride: std::mem::size_of::<mesh::Vertex>() as u64,
+                    step_mode: wgpu::VertexStepMode::Vertex,
+                    attributes: &wgpu::vertex_attr_array![0 => Float32x3, 1 => Float32x2, 2 => Float32, 3 => Float32],
+                })],
+            },
+            primitive: wgpu::PrimitiveState { cull_mode: None, ..Default::default() },
+            depth_stencil: Some(wgpu::DepthStencilState {
+                format: wgpu::TextureFormat::Depth32Float,
+                depth_write_enabled: Some(true),
+                depth_compare: Some(wgpu::CompareFunction::Less),
+                stencil: Default::default(),
+                bias: Default::default(),
+            }),
+            multisample: Default::default(),
+            fragment: Some(wgpu::FragmentState {
+                module: &shader,
+                entry_point: Some("fs_main"),
+                compilation_options: Default::default(),
+                targets: &[Some(wgpu::ColorTargetState {
+                    format: wgpu::TextureFormat::R8Unorm,
+                    blend: None,
+                    write_mask: wgpu::ColorWrites::ALL,
+                })],
+            }),
+            multiview_mask: None,
+            cache: None,
+        });
+
+        let atlas_size = wgpu::Extent3d { width: aw, height: ah, depth_or_array_layers: 1 };
+        let color = device.create_texture(&wgpu::TextureDescriptor {
+            label: Some("atlas"),
+            size: atlas_size,
+            mip_level_count: 1,
+            sample_count: 1,
+            dimension: wgpu::TextureDimension::D2,
+            format: wgpu::TextureFormat::R8Unorm,
+            usage: wgpu::TextureUsages::RENDER_ATTACHMENT | wgpu::TextureUsages::COPY_SRC,
+            view_formats: &[],
+        });
+        let depth = device.create_texture(&wgpu::TextureDescriptor {
+            label: Some("atlas depth"),
+            size: atlas_size,
+            mip_level_count: 1,
+            sample_count: 1,
+            dimension: wgpu::TextureDimension::D2,
+            format: wgpu::TextureFormat::Depth32Float,
+            usage: wgpu::TextureUsages::RENDER_ATTACHMENT,
+            view_formats: &[],
+        });
+        let padded_bpr = aw.div_ceil(wgpu::COPY_BYTES_PER_ROW_ALIGNMENT) * wgpu::COPY_BYTES_PER_ROW_ALIGNMENT;
+        let readback = device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("atlas readback"),
+            size: padded_bpr as u64 * ah as u64,
+            usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        });
+        let fov = config.fov_deg.to_radians();
+        let proj = glam::camera::rh::proj::directx::perspective(fov, 1.0, NEAR, FAR);
+        tracing::debug!(adapter = %describe(&adapter_info), views, aw, ah, "renderer ready");
+        Ok(Renderer {
+            color_view: color.create_view(&Default::default()),
+            color,
+            depth_view: depth.create_view(&Default::default()),
+            device,
+            queue,
+            pipeline,
+            bind_group,
+            uniforms,
+            uniform_stride,
+            vertex_count: mesh.len() as u32,
+            vertices,
+            readback,
+            padded_bpr,
+            cols,
+            staging: vec![0; (uniform_stride * views as u64) as usize],
+            config,
+            proj,
+            adapter_info,
+        })
+    }
+
+    /// "name (backend, device type)" of the adapter in use.
+    pub fn adapter_description(&self) -> String {
+        describe(&self.adapter_info)
+    }
+
+    /// The settings this renderer was built with.
+    pub fn config(&self) -> &RendererConfig {
+        &self.config
+    }
+
+    /// Render all `views` in one submission and map the result once.
+    pub fn render(&mut self, views: &[CameraView]) -> Result<Frames<'_>, RenderError> {
+        let max = self.config.max_views.max(1);
+        if views.len() > max {
+            return Err(RenderError::TooManyViews { asked: views.len(), max });
+        }
+        if views.is_empty() {
+            return Ok(Frames { view: None, renderer: self, count: 0 });
+        }
+        let size = self.config.image_size;
+        for (i, v) in views.iter().enumerate() {
+            let eye = Vec3::new(v.x, v.y, v.z);
+            let dir = Vec3::new(v.yaw.cos(), v.yaw.sin(), 0.0);
+            let view_m = glam::camera::rh::view::look_to_mat4(eye, dir, Vec3::Z);
+            let u = ViewUniform {
+                view_proj: (self.proj * view_m).to_cols_array_2d(),
+                eye: [v.x, v.y, v.z, v.look.haze],
+                look: [v.look.brightness, v.look.contrast, SKY_SHADE, 0.0],
+            };
+            let off = i * self.uniform_stride as usize;
+            self.staging[off..off + std::mem::size_of::<ViewUniform>()].copy_from_slice(bytemuck::bytes_of(&u));
+        }
+        let used = views.len() as u64 * self.uniform_stride;
+        self.queue.write_buffer(&self.uniforms, 0, &self.staging[..used as usize]);
+
+        let rows = (views.len() as u32).div_ceil(self.cols);
+        let mut encoder = self.device.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("views") });
+        {
+            let mut pass = encoder.begin_render_pass(&wgpu::RenderPassDescriptor {
+                label: Some("views"),
+                color_attachments: &[Some(wgpu::RenderPassColorAttachment {
+                    view: &self.color_view,
+                    depth_slice: None,
+                    resolve_target: None,
+                    ops: wgpu::Operations {
+                        load: wgpu::LoadOp::Clear(wgpu::Color { r: SKY_SHADE as f64, g: 0.0, b: 0.0, a: 1.0 }),
+                        store: wgpu::StoreOp::Store,
+                    },
+                })],
+                depth_stencil_attachment: Some(wgpu::RenderPassDepthStencilAttachment {
+                    view: &self.depth_view,
+                    depth_ops: Some(wgpu::Operations { load: wgpu::LoadOp::Clear(1.0), store: wgpu::StoreOp::Discard }),
+                    stencil_ops: None,
+                }),
+                ..Default::default()
+            });
+            pass.set_pipeline(&self.pipeline);
+            pass.set_vertex_buffer(0, self.vertices.slice(..));
+            for i in 0..views.len() as u32 {
+                let (c, r) = (i % self.cols, i / self.cols);
+                pass.set_viewport((c * size) as f32, (r * size) as f32, size as f32, size as f32, 0.0, 1.0);
+                pass.set_bind_group(0, &self.bind_group, &[(i as u64 * self.uniform_stride) as u32]);
+                pass.draw(0..self.vertex_count, 0..1);
+            }
+        }
+        let copy_height = rows * size;
+        encoder.copy_texture_to_buffer(
+            wgpu::TexelCopyTextureInfo {
+                texture: &self.color,
+                mip_level: 0,
+                origin: wgpu::Origin3d::ZERO,
+                aspect: wgpu::TextureAspect::All,
+            },
+            wgpu::TexelCopyBufferInfo {
+                buffer: &self.readback,
+                layout: wgpu::TexelCopyBufferLayout {
+                    offset: 0,
+                    bytes_per_row: Some(self.padded_bpr),
+                    rows_per_image: Some(copy_height),
+                },
+            },
+            wgpu::Extent3d { width: self.cols * size, height: copy_height, depth_or_array_layers: 1 },
+        );
+        self.queue.submit([encoder.finish()]);
+
+        let bytes = self.padded_bpr as u64 * copy_height as u64;
+        let status = Arc::new(std::sync::Mutex::new(None));
+        let status_cb = status.clone();
+        self.readback.slice(..bytes).map_async(wgpu::MapMode::Read, move |r| {
+            *status_cb.lock().expect("map status lock") = Some(r);
+        });
+        self.device
+            .poll(wgpu::PollType::Wait { submission_index: None, timeout: None })
+            .map_err(|e| RenderError::Readback(e.to_string()))?;
+        match status.lock().expect("map status lock").take() {
+            Some(Ok(())) => {}
+            Some(Err(e)) => return Err(RenderError::Readback(e.to_string())),
+            None => return Err(RenderError::Readback("buffer map callback never ran".into())),
+        }
+        let view = self
+            .readback
+            .slice(..bytes)
+            .get_mapped_range()
+            .map_err(|e| RenderError::Readback(e.to_string()))?;
+        Ok(Frames { view: Some(view), count: views.len(), renderer: self })
+    }
+}
+
+fn describe(info: &wgpu::AdapterInfo) -> String {
+    format!("{} ({:?}, {:?})", info.name, info.backend, info.device_type)
+}
+
+/// The mapped result of one [`Renderer::render`] call; unmaps on drop.
+pub struct Frames<'a> {
+    view: Option<wgpu::BufferView>,
+    renderer: &'a Renderer,
+    count: usize,
+}
+
+impl Frames<'_> {
+    /// Number of views.
+    pub fn len(&self) -> usize {
+        self.count
+    }
+
+    /// True when no view was rendered.
+    pub fn is_empty(&self) -> bool {
+        self.count == 0
+    }
+
+    /// Side of each view in pixels.
+    pub fn image_size(&self) -> u32 {
+        self.renderer.config.image_size
+    }
+
+    /// Row `row` (0 = top) of view `i`, straight from the mapped buffer.
+    #[inline]
+    pub fn row(&self, i: usize, row: u32) -> &[u8] {
+        assert!(i < self.count, "view {i} out of {}", self.count);
+        let r = self.renderer;
+        let size = r.config.image_size;
+        let (c, gr) = (i as u32 % r.cols, i as u32 / r.cols);
+        let start = ((gr * size + row) * r.padded_bpr + c * size) as usize;
+        let data: &[u8] = self.view.as_deref().expect("non-empty frames are mapped");
+        &data[start..start + size as usize]
+    }
+
+    /// Copy view `i` into `dst` (`image_size²` bytes, row-major, top row first).
+    pub fn copy_frame(&self, i: usize, dst: &mut [u8]) {
+        let size = self.image_size() as usize;
+        assert_eq!(dst.len(), size * size, "destination must hold one {size}×{size} frame");
+        for (row, chunk) in dst.chunks_exact_mut(size).enumerate() {
+            chunk.copy_from_slice(self.row(i, row as u32));
+        }
+    }
+
+    /// View `i` as a new vector.
+    pub fn frame(&self, i: usize) -> Vec<u8> {
+        let size = self.image_size() as usize;
+        let mut v = vec![0; size * size];
+        self.copy_frame(i, &mut v);
+        v
+    }
+}
+
+impl Drop for Frames<'_> {
+    fn drop(&mut self) {
+        if self.view.take().is_some() {
+            self.renderer.readback.unmap();
+        }
+    }
+}

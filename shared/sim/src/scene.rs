@@ -1,0 +1,722 @@
+//! The scene as data: one TOML description from which the renderer's meshes and
+//! ground texture, the physics colliders and the reward map are all derived.
+//!
+//! Invariant: a [`Scene`] that exists has passed [`Scene::validate`] — every
+//! polygon has at least three vertices, exactly one region is the goal, every
+//! start pose (first task, fixed start, validation points) lies inside the world,
+//! outside obstacles and outside the goal, and every reward is finite. Code
+//! downstream relies on this and does not re-check.
+//!
+//! Coordinates: metres, `x` east, `y` north, `z` up; yaw in degrees in the scene
+//! file (radians everywhere in code), 0° facing +x (east), counter-clockwise positive.
+
+use std::path::Path;
+
+use serde::{Deserialize, Serialize};
+
+use crate::error::{Result, SimError};
+
+/// The reference corner crossing (DESIGN §3), compiled into the binary.
+pub const REFERENCE_SCENE_TOML: &str = include_str!("../scenes/corner.toml");
+
+/// What a patch of ground is; decides the per-step map reward and the look.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum RegionKind {
+    /// Carriageway: heavily penalised.
+    Road,
+    /// Sidewalks on the start side and elsewhere.
+    Sidewalk,
+    /// The sidewalk on the goal's side of the road.
+    GoalSidewalk,
+    /// Zebra crossing painted over the road.
+    Zebra,
+    /// Goal area: reaching it ends the episode with the goal reward.
+    Goal,
+}
+
+impl RegionKind {
+    /// All kinds, in label order (`kind as u8` is the label stored in the region map).
+    pub const ALL: [RegionKind; 5] = [
+        RegionKind::Road,
+        RegionKind::Sidewalk,
+        RegionKind::GoalSidewalk,
+        RegionKind::Zebra,
+        RegionKind::Goal,
+    ];
+
+    /// The label stored in the region map.
+    pub fn label(self) -> u8 {
+        self as u8
+    }
+
+    /// The kind of a region-map label.
+    pub fn from_label(label: u8) -> RegionKind {
+        Self::ALL[label as usize]
+    }
+
+    /// Human-readable name used in logs and legends.
+    pub fn name(self) -> &'static str {
+        match self {
+            RegionKind::Road => "road",
+            RegionKind::Sidewalk => "sidewalk",
+            RegionKind::GoalSidewalk => "goal-side sidewalk",
+            RegionKind::Zebra => "zebra crossing",
+            RegionKind::Goal => "goal",
+        }
+    }
+}
+
+/// Axis along which a pedestrian walks over a zebra crossing; the stripes
+/// alternate along it (each stripe is long across this axis).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Axis {
+    /// Walking direction along x.
+    X,
+    /// Walking direction along y.
+    Y,
+}
+
+/// Per-step rewards (paper §IV, Fig. 1b): `r = r_map(region) + speed·v + collision`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Rewards {
+    /// Map reward on reaching the goal area (terminal). Paper: +15.
+    pub goal: f32,
+    /// Map reward per step on the goal-side sidewalk. Paper: −0.6.
+    pub goal_sidewalk: f32,
+    /// Map reward per step on a zebra crossing. Paper: −0.8.
+    pub zebra: f32,
+    /// Map reward per step on any other sidewalk. Paper: −1.0.
+    pub sidewalk: f32,
+    /// Map reward per step on the road. Paper: −3.
+    pub road: f32,
+    /// Coefficient of the speed reward `speed · v` (v in m/s). Paper: 0.125.
+    pub speed: f32,
+    /// Reward added on a step with a collision. Paper: −3.
+    pub collision: f32,
+}
+
+impl Rewards {
+    /// Map reward of a region kind.
+    pub fn map_reward(&self, kind: RegionKind) -> f32 {
+        match kind {
+            RegionKind::Road => self.road,
+            RegionKind::Sidewalk => self.sidewalk,
+            RegionKind::GoalSidewalk => self.goal_sidewalk,
+            RegionKind::Zebra => self.zebra,
+            RegionKind::Goal => self.goal,
+        }
+    }
+}
+
+/// An axis-aligned rectangle `[x_min, y_min, x_max, y_max]` in metres.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct Rect {
+    /// Lower-left corner.
+    pub min: [f32; 2],
+    /// Upper-right corner.
+    pub max: [f32; 2],
+}
+
+impl Rect {
+    /// Does the rectangle contain the point (closed on all sides)?
+    pub fn contains(&self, x: f32, y: f32) -> bool {
+        x >= self.min[0] && x <= self.max[0] && y >= self.min[1] && y <= self.max[1]
+    }
+    /// Width along x.
+    pub fn width(&self) -> f32 {
+        self.max[0] - self.min[0]
+    }
+    /// Height along y.
+    pub fn height(&self) -> f32 {
+        self.max[1] - self.min[1]
+    }
+    fn polygon(&self) -> Vec<[f32; 2]> {
+        vec![
+            [self.min[0], self.min[1]],
+            [self.max[0], self.min[1]],
+            [self.max[0], self.max[1]],
+            [self.min[0], self.max[1]],
+        ]
+    }
+}
+
+/// A simple polygon (any winding, not self-intersecting) in metres.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(transparent)]
+pub struct Polygon(pub Vec<[f32; 2]>);
+
+impl Polygon {
+    /// Even-odd point-in-polygon test.
+    pub fn contains(&self, x: f32, y: f32) -> bool {
+        let v = &self.0;
+        let mut inside = false;
+        let mut j = v.len() - 1;
+        for i in 0..v.len() {
+            let (xi, yi) = (v[i][0], v[i][1]);
+            let (xj, yj) = (v[j][0], v[j][1]);
+            if (yi > y) != (yj > y) && x < (xj - xi) * (y - yi) / (yj - yi) + xi {
+                inside = !inside;
+            }
+            j = i;
+        }
+        inside
+    }
+
+    /// Bounding box of the polygon.
+    pub fn bounds(&self) -> Rect {
+        let mut r = Rect { min: [f32::INFINITY; 2], max: [f32::NEG_INFINITY; 2] };
+        for p in &self.0 {
+            r.min[0] = r.min[0].min(p[0]);
+            r.min[1] = r.min[1].min(p[1]);
+            r.max[0] = r.max[0].max(p[0]);
+            r.max[1] = r.max[1].max(p[1]);
+        }
+        r
+    }
+
+    /// Area (shoelace formula), positive for either winding.
+    pub fn area(&self) -> f32 {
+        let v = &self.0;
+        let mut a = 0.0;
+        for i in 0..v.len() {
+            let j = (i + 1) % v.len();
+            a += v[i][0] * v[j][1] - v[j][0] * v[i][1];
+        }
+        (a * 0.5).abs()
+    }
+}
+
+/// A shape on the ground plane given either as `rect = [x0, y0, x1, y1]` or as
+/// `polygon = [[x, y], ...]` in the scene file.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Area {
+    /// Axis-aligned rectangle `[x_min, y_min, x_max, y_max]`.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub rect: Option<[f32; 4]>,
+    /// Polygon vertices.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub polygon: Option<Vec<[f32; 2]>>,
+}
+
+impl Area {
+    fn resolve(&self, field: &str, origin: &str) -> Result<Polygon> {
+        match (&self.rect, &self.polygon) {
+            (Some(r), None) => {
+                if !(r[2] > r[0] && r[3] > r[1]) {
+                    return Err(invalid(origin, field, format!("rect {r:?} must satisfy x_min < x_max and y_min < y_max")));
+                }
+                Ok(Polygon(Rect { min: [r[0], r[1]], max: [r[2], r[3]] }.polygon()))
+            }
+            (None, Some(p)) => {
+                if p.len() < 3 {
+                    return Err(invalid(origin, field, format!("polygon needs at least 3 vertices, got {}", p.len())));
+                }
+                let poly = Polygon(p.clone());
+                if poly.area() <= 1e-6 {
+                    return Err(invalid(origin, field, "polygon has zero area".into()));
+                }
+                Ok(poly)
+            }
+            _ => Err(invalid(origin, field, "give exactly one of `rect` or `polygon`".into())),
+        }
+    }
+}
+
+/// A ground region as written in the scene file.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RegionSpec {
+    /// What the region is.
+    pub kind: RegionKind,
+    /// Outline as a rectangle `[x_min, y_min, x_max, y_max]`.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub rect: Option<[f32; 4]>,
+    /// Outline as a polygon.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub polygon: Option<Vec<[f32; 2]>>,
+    /// Zebra crossings only: the axis a pedestrian walks along over the crossing.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub walk_axis: Option<Axis>,
+}
+
+/// A resolved ground region (polygon form).
+#[derive(Debug, Clone, PartialEq)]
+pub struct Region {
+    /// What the region is.
+    pub kind: RegionKind,
+    /// Its outline.
+    pub polygon: Polygon,
+    /// Zebra crossings only: walking axis (stripes alternate along it).
+    pub walk_axis: Option<Axis>,
+}
+
+/// Kind of a static obstacle; decides its look and how it is drawn on the map.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum ObstacleKind {
+    /// A building block (box).
+    Building,
+    /// A lamp or traffic-light pole (cylinder).
+    Pole,
+    /// A bench (box, low).
+    Bench,
+    /// A tree: the collider is the trunk cylinder; a crown is drawn above head height.
+    Tree,
+    /// A boundary wall at the edge of the world (generated, not written in files).
+    Wall,
+}
+
+/// A static obstacle as written in the scene file: either a box
+/// (`rect` footprint) or a vertical cylinder (`center` + `radius`).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ObstacleSpec {
+    /// What the obstacle is.
+    pub kind: ObstacleKind,
+    /// Box footprint `[x_min, y_min, x_max, y_max]`.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub rect: Option<[f32; 4]>,
+    /// Cylinder centre `[x, y]`.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub center: Option<[f32; 2]>,
+    /// Cylinder radius in metres.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub radius: Option<f32>,
+    /// Height in metres.
+    pub height: f32,
+    /// Grey level in [0, 1] of its lit faces.
+    pub shade: f32,
+}
+
+/// Footprint of a resolved obstacle.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Footprint {
+    /// Axis-aligned box.
+    Box(Rect),
+    /// Vertical cylinder.
+    Cylinder {
+        /// Centre on the ground.
+        center: [f32; 2],
+        /// Radius in metres.
+        radius: f32,
+    },
+}
+
+impl Footprint {
+    /// Distance from a point to the footprint (0 inside).
+    pub fn distance(&self, x: f32, y: f32) -> f32 {
+        match *self {
+            Footprint::Box(r) => {
+                let dx = (r.min[0] - x).max(0.0).max(x - r.max[0]);
+                let dy = (r.min[1] - y).max(0.0).max(y - r.max[1]);
+                (dx * dx + dy * dy).sqrt()
+            }
+            Footprint::Cylinder { center, radius } => {
+                (((x - center[0]).powi(2) + (y - center[1]).powi(2)).sqrt() - radius).max(0.0)
+            }
+        }
+    }
+}
+
+/// A resolved static obstacle.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Obstacle {
+    /// What it is.
+    pub kind: ObstacleKind,
+    /// Where it stands.
+    pub footprint: Footprint,
+    /// Height in metres.
+    pub height: f32,
+    /// Grey level of lit faces.
+    pub shade: f32,
+}
+
+/// A painted line on the road (lane divider); purely visual.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Marking {
+    /// Start point.
+    pub from: [f32; 2],
+    /// End point.
+    pub to: [f32; 2],
+    /// Line width in metres.
+    pub width: f32,
+    /// Painted length of each dash in metres (0 = solid line).
+    #[serde(default)]
+    pub dash: f32,
+    /// Gap between dashes in metres.
+    #[serde(default)]
+    pub gap: f32,
+}
+
+/// A start pose as written in the scene file (yaw in degrees).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct PoseSpec {
+    /// x in metres.
+    pub x: f32,
+    /// y in metres.
+    pub y: f32,
+    /// Yaw in degrees, 0 = east, counter-clockwise.
+    pub yaw_deg: f32,
+}
+
+/// An agent pose on the ground plane (yaw in radians).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct Pose {
+    /// x in metres.
+    pub x: f32,
+    /// y in metres.
+    pub y: f32,
+    /// Body yaw in radians, 0 = east, counter-clockwise.
+    pub yaw: f32,
+}
+
+impl Pose {
+    /// A pose from metres and degrees.
+    pub fn from_degrees(x: f32, y: f32, yaw_deg: f32) -> Pose {
+        Pose { x, y, yaw: yaw_deg.to_radians() }
+    }
+}
+
+impl From<PoseSpec> for Pose {
+    fn from(p: PoseSpec) -> Pose {
+        Pose::from_degrees(p.x, p.y, p.yaw_deg)
+    }
+}
+
+/// One of the validation points of the paper's §V-C / Fig. 5a.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ValidationPoint {
+    /// Index 0..13; 0–7 are interpolated (inside the curriculum region,
+    /// difficulty rising with the index), 8–13 extrapolated (outside it).
+    pub id: u32,
+    /// x in metres.
+    pub x: f32,
+    /// y in metres.
+    pub y: f32,
+    /// The favourable yaw in degrees (used for the documented oracle figure).
+    pub favourable_yaw_deg: f32,
+}
+
+/// The scene file's schema.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SceneSpec {
+    /// Short name, used in logs and output names.
+    pub name: String,
+    /// One-paragraph description.
+    #[serde(default)]
+    pub description: String,
+    /// World bounds `[x_min, y_min, x_max, y_max]`; boundary walls stand on its edges.
+    pub extent: [f32; 4],
+    /// Cell size of the region (reward) map and the ground texture, in metres.
+    pub cell_size: f32,
+    /// Height of the generated boundary walls in metres.
+    #[serde(default = "default_wall_height")]
+    pub wall_height: f32,
+    /// Per-step rewards.
+    pub rewards: Rewards,
+    /// Ground regions in paint order: a later region overrides an earlier one where
+    /// they overlap. Cells covered by none are road.
+    pub regions: Vec<RegionSpec>,
+    /// Static obstacles.
+    #[serde(default)]
+    pub obstacles: Vec<ObstacleSpec>,
+    /// Painted road markings (visual only).
+    #[serde(default)]
+    pub markings: Vec<Marking>,
+    /// The easiest pose, used before the curriculum's PassFirstTask gate opens.
+    pub first_task: PoseSpec,
+    /// The fixed start of the Non-ACL variants (validation point 3).
+    pub fixed_start: PoseSpec,
+    /// The region the curriculum samples start positions from (union of areas).
+    pub curriculum_region: Vec<Area>,
+    /// The 14 validation points.
+    pub validation_points: Vec<ValidationPoint>,
+}
+
+fn default_wall_height() -> f32 {
+    3.0
+}
+
+/// A validated scene; see the module docs for the invariant.
+#[derive(Debug, Clone)]
+pub struct Scene {
+    /// The specification it was built from (written into run directories).
+    pub spec: SceneSpec,
+    /// Where it came from (path or `built-in:corner`).
+    pub origin: String,
+    /// World bounds.
+    pub extent: Rect,
+    /// Ground regions in paint order.
+    pub regions: Vec<Region>,
+    /// Static obstacles, including the generated boundary walls (last four).
+    pub obstacles: Vec<Obstacle>,
+    /// The curriculum region as a union of polygons.
+    pub curriculum_region: Vec<Polygon>,
+    /// Centroid of the goal region: the `s_g` of the task features φ = (dx, dy, yaw).
+    pub goal_center: [f32; 2],
+}
+
+fn invalid(origin: &str, field: &str, message: String) -> SimError {
+    SimError::SceneInvalid { origin: origin.to_string(), field: field.to_string(), message }
+}
+
+impl Scene {
+    /// The built-in reference corner crossing.
+    pub fn reference() -> Scene {
+        Scene::from_toml_str(REFERENCE_SCENE_TOML, "built-in:corner")
+            .expect("the built-in reference scene is valid (checked by tests)")
+    }
+
+    /// Load and validate a scene file.
+    pub fn load(path: &Path) -> Result<Scene> {
+        let text = std::fs::read_to_string(path)
+            .map_err(|source| SimError::SceneIo { path: path.to_path_buf(), source })?;
+        Scene::from_toml_str(&text, &path.display().to_string())
+    }
+
+    /// Load a scene from a path, or the reference scene when `path` is `None`.
+    pub fn load_or_reference(path: Option<&Path>) -> Result<Scene> {
+        match path {
+            Some(p) => Scene::load(p),
+            None => Ok(Scene::reference()),
+        }
+    }
+
+    /// Parse and validate a scene from TOML text.
+    pub fn from_toml_str(text: &str, origin: &str) -> Result<Scene> {
+        let spec: SceneSpec = toml::from_str(text)
+            .map_err(|e| SimError::SceneParse { origin: origin.to_string(), message: e.to_string() })?;
+        Scene::from_spec(spec, origin)
+    }
+
+    /// Validate a parsed specification and resolve its shapes.
+    pub fn from_spec(spec: SceneSpec, origin: &str) -> Result<Scene> {
+        let e = spec.extent;
+        if !(e.iter().all(|v| v.is_finite()) && e[2] > e[0] && e[3] > e[1]) {
+            return Err(invalid(origin, "extent", format!("{e:?} must be finite with x_min < x_max, y_min < y_max")));
+        }
+        let extent = Rect { min: [e[0], e[1]], max: [e[2], e[3]] };
+        if !(spec.cell_size > 0.005 && spec.cell_size <= 1.0) {
+            return Err(invalid(origin, "cell_size", format!("{} must lie in (0.005, 1] metres", spec.cell_size)));
+        }
+        if !(spec.wall_height > 0.0 && spec.wall_height.is_finite()) {
+            return Err(invalid(origin, "wall_height", format!("{} must be positive", spec.wall_height)));
+        }
+        let r = &spec.rewards;
+        for (name, v) in [
+            ("goal", r.goal),
+            ("goal_sidewalk", r.goal_sidewalk),
+            ("zebra", r.zebra),
+            ("sidewalk", r.sidewalk),
+            ("road", r.road),
+            ("speed", r.speed),
+            ("collision", r.collision),
+        ] {
+            if !v.is_finite() {
+                return Err(invalid(origin, &format!("rewards.{name}"), format!("{v} is not finite")));
+            }
+        }
+
+        let mut regions = Vec::with_capacity(spec.regions.len());
+        for (i, rs) in spec.regions.iter().enumerate() {
+            let field = format!("regions[{i}]");
+            let polygon = Area { rect: rs.rect, polygon: rs.polygon.clone() }.resolve(&field, origin)?;
+            if rs.kind == RegionKind::Zebra && rs.walk_axis.is_none() {
+                return Err(invalid(origin, &format!("{field}.walk_axis"), "a zebra crossing needs `walk_axis = \"x\"` or `\"y\"`".into()));
+            }
+            regions.push(Region { kind: rs.kind, polygon, walk_axis: rs.walk_axis });
+        }
+        let goals: Vec<&Region> = regions.iter().filter(|r| r.kind == RegionKind::Goal).collect();
+        if goals.len() != 1 {
+            return Err(invalid(origin, "regions", format!("exactly one region of kind \"goal\" is required, found {}", goals.len())));
+        }
+        let gb = goals[0].polygon.bounds();
+        let goal_center = [(gb.min[0] + gb.max[0]) * 0.5, (gb.min[1] + gb.max[1]) * 0.5];
+
+        let mut obstacles = Vec::with_capacity(spec.obstacles.len() + 4);
+        for (i, os) in spec.obstacles.iter().enumerate() {
+            let field = format!("obstacles[{i}]");
+            if os.kind == ObstacleKind::Wall {
+                return Err(invalid(origin, &field, "walls are generated from `extent`; do not list them".into()));
+            }
+            if !(os.height > 0.0 && os.height.is_finite()) {
+                return Err(invalid(origin, &format!("{field}.height"), format!("{} must be positive", os.height)));
+            }
+            if !(0.0..=1.0).contains(&os.shade) {
+                return Err(invalid(origin, &format!("{field}.shade"), format!("{} must lie in [0, 1]", os.shade)));
+            }
+            let footprint = match (os.rect, os.center, os.radius) {
+                (Some(r), None, None) => {
+                    if !(r[2] > r[0] && r[3] > r[1]) {
+                        return Err(invalid(origin, &format!("{field}.rect"), format!("{r:?} must satisfy x_min < x_max and y_min < y_max")));
+                    }
+                    Footprint::Box(Rect { min: [r[0], r[1]], max: [r[2], r[3]] })
+                }
+                (None, Some(c), Some(rad)) => {
+                    if !(rad > 0.0) {
+                        return Err(invalid(origin, &format!("{field}.radius"), format!("{rad} must be positive")));
+                    }
+                    Footprint::Cylinder { center: c, radius: rad }
+                }
+                _ => {
+                    return Err(invalid(origin, &field, "give either `rect` (a box) or `center` and `radius` (a cylinder)".into()));
+                }
+            };
+            obstacles.push(Obstacle { kind: os.kind, footprint, height: os.height, shade: os.shade });
+        }
+        // Boundary walls, 0.5 m thick, just outside the extent.
+        let t = 0.5;
+        let (x0, y0, x1, y1) = (extent.min[0], extent.min[1], extent.max[0], extent.max[1]);
+        for rect in [
+            Rect { min: [x0 - t, y0 - t], max: [x1 + t, y0] },
+            Rect { min: [x0 - t, y1], max: [x1 + t, y1 + t] },
+            Rect { min: [x0 - t, y0], max: [x0, y1] },
+            Rect { min: [x1, y0], max: [x1 + t, y1] },
+        ] {
+            obstacles.push(Obstacle { kind: ObstacleKind::Wall, footprint: Footprint::Box(rect), height: spec.wall_height, shade: 0.5 });
+        }
+
+        let mut curriculum_region = Vec::new();
+        for (i, a) in spec.curriculum_region.iter().enumerate() {
+            curriculum_region.push(a.resolve(&format!("curriculum_region[{i}]"), origin)?);
+        }
+        if curriculum_region.is_empty() {
+            return Err(invalid(origin, "curriculum_region", "at least one area is required".into()));
+        }
+
+        let scene = Scene { spec, origin: origin.to_string(), extent, regions, obstacles, curriculum_region, goal_center };
+
+        scene.check_start("first_task", scene.spec.first_task.into())?;
+        scene.check_start("fixed_start", scene.spec.fixed_start.into())?;
+        if scene.spec.validation_points.len() != 14 {
+            return Err(invalid(origin, "validation_points", format!("the protocol of §V-C needs 14 points, found {}", scene.spec.validation_points.len())));
+        }
+        for (i, p) in scene.spec.validation_points.iter().enumerate() {
+            let field = format!("validation_points[{i}]");
+            if p.id as usize != i {
+                return Err(invalid(origin, &format!("{field}.id"), format!("expected id {i}, found {}", p.id)));
+            }
+            scene.check_start(&field, Pose::from_degrees(p.x, p.y, p.favourable_yaw_deg))?;
+            let inside = scene.in_curriculum_region(p.x, p.y);
+            if (i < 8) != inside {
+                let want = if i < 8 { "inside" } else { "outside" };
+                return Err(invalid(origin, &field, format!("point {i} must lie {want} the curriculum region (0–7 inside, 8–13 outside)")));
+            }
+        }
+        Ok(scene)
+    }
+
+    /// Agent radius used to decide whether a start pose is clear of obstacles.
+    pub const START_CLEARANCE: f32 = 0.35;
+
+    fn check_start(&self, field: &str, pose: Pose) -> Result<()> {
+        self.check_task(pose).map_err(|e| match e {
+            SimError::InvalidTask { message, .. } => invalid(&self.origin, field, message),
+            other => other,
+        })
+    }
+
+    /// Check that a pose can start an episode: inside the world, clear of
+    /// obstacles by [`Scene::START_CLEARANCE`], not inside the goal.
+    pub fn check_task(&self, pose: Pose) -> Result<()> {
+        let err = |message: String| SimError::InvalidTask { x: pose.x, y: pose.y, message };
+        if !(pose.x.is_finite() && pose.y.is_finite() && pose.yaw.is_finite()) {
+            return Err(err("pose is not finite".into()));
+        }
+        if !self.extent.contains(pose.x, pose.y) {
+            return Err(err(format!("outside the world {:?}..{:?}", self.extent.min, self.extent.max)));
+        }
+        if let Some(o) = self.obstacles.iter().find(|o| o.footprint.distance(pose.x, pose.y) < Self::START_CLEARANCE) {
+            return Err(err(format!("inside or touching a {:?} obstacle", o.kind)));
+        }
+        if self.region_kind_exact(pose.x, pose.y) == RegionKind::Goal {
+            return Err(err("already inside the goal area".into()));
+        }
+        Ok(())
+    }
+
+    /// Region kind at a point by exact polygon tests (the region map rasterises this).
+    pub fn region_kind_exact(&self, x: f32, y: f32) -> RegionKind {
+        self.regions
+            .iter()
+            .rev()
+            .find(|r| r.polygon.contains(x, y))
+            .map(|r| r.kind)
+            .unwrap_or(RegionKind::Road)
+    }
+
+    /// Is the point inside the curriculum region?
+    pub fn in_curriculum_region(&self, x: f32, y: f32) -> bool {
+        self.curriculum_region.iter().any(|p| p.contains(x, y))
+    }
+
+    /// The first task (easiest pose before PassFirstTask).
+    pub fn first_task(&self) -> Pose {
+        self.spec.first_task.into()
+    }
+
+    /// The fixed start of the Non-ACL variants.
+    pub fn fixed_start(&self) -> Pose {
+        self.spec.fixed_start.into()
+    }
+
+    /// The validation points.
+    pub fn validation_points(&self) -> &[ValidationPoint] {
+        &self.spec.validation_points
+    }
+
+    /// Region rewards.
+    pub fn rewards(&self) -> &Rewards {
+        &self.spec.rewards
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn reference_scene_is_valid() {
+        let s = Scene::reference();
+        assert_eq!(s.validation_points().len(), 14);
+        assert_eq!(s.obstacles.iter().filter(|o| o.kind == ObstacleKind::Wall).count(), 4);
+    }
+
+    #[test]
+    fn polygon_contains_matches_rect() {
+        let p = Polygon(Rect { min: [0.0, 0.0], max: [2.0, 1.0] }.polygon());
+        assert!(p.contains(1.0, 0.5));
+        assert!(!p.contains(2.5, 0.5));
+        assert!(!p.contains(1.0, -0.1));
+        assert!((p.area() - 2.0).abs() < 1e-6);
+    }
+
+    #[test]
+    fn bad_scene_names_the_field() {
+        let text = REFERENCE_SCENE_TOML.replace("cell_size = 0.05", "cell_size = -1.0");
+        let err = Scene::from_toml_str(&text, "test").unwrap_err().to_string();
+        assert!(err.contains("cell_size"), "{err}");
+        let text = REFERENCE_SCENE_TOML.replacen("kind = \"goal\"", "kind = \"sidewalk\"", 1);
+        let err = Scene::from_toml_str(&text, "test").unwrap_err().to_string();
+        assert!(err.contains("exactly one region"), "{err}");
+        let err = Scene::from_toml_str("name = 3", "test").unwrap_err().to_string();
+        assert!(err.contains("test") && err.contains("name"), "{err}");
+    }
+
+    #[test]
+    fn start_inside_building_is_rejected() {
+        let s = Scene::reference();
+        let b = s.obstacles.iter().find(|o| o.kind == ObstacleKind::Building).unwrap();
+        let Footprint::Box(r) = b.footprint else { panic!("building is a box") };
+        let pose = Pose { x: (r.min[0] + r.max[0]) / 2.0, y: (r.min[1] + r.max[1]) / 2.0, yaw: 0.0 };
+        assert!(matches!(s.check_task(pose), Err(SimError::InvalidTask { .. })));
+    }
+}
