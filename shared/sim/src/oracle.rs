@@ -19,7 +19,7 @@
 //!
 //! Invariant: the value table is computed once per (scene, config) and is read-only.
 
-use crate::pedestrian::{Pedestrian, Transition};
+use crate::pedestrian::{Action, Pedestrian};
 use crate::scene::{Pose, RegionKind};
 use crate::world::SimWorld;
 
@@ -66,18 +66,29 @@ pub struct Oracle {
     ny: usize,
     /// `values[(j * nx + i) * headings + h]`.
     values: Vec<f32>,
-    free: Vec<bool>,
-    /// Number of sweeps used.
-    pub sweeps: usize,
+    sweeps: usize,
 }
 
-const BLOCKED: f32 = -1.0e4;
+/// Value of blocked cells and the initial value of free ones: the worst return
+/// (road and a collision every step, forever) is −6/(1−γ) = −600 at γ = 0.99; −350 is
+/// below every return that avoids collisions, which is all the planner allows.
+const BLOCKED: f32 = -350.0;
 
+/// A motion primitive from a cell centre, with its precomputed successor stencil.
 struct Motion {
-    dh: isize,
-    dx: f32,
-    dy: f32,
-    speed: f32,
+    /// Heading bin after the step.
+    hn: usize,
+    /// Offset of the grid cell containing the successor.
+    cell_di: isize,
+    cell_dj: isize,
+    /// Offset of the lower-left node of the successor's bilinear stencil.
+    base_di: isize,
+    base_dj: isize,
+    /// Bilinear weights of the successor inside its stencil.
+    tx: f32,
+    ty: f32,
+    /// Speed reward of the primitive.
+    speed_reward: f32,
 }
 
 impl Oracle {
@@ -91,15 +102,21 @@ impl Oracle {
         let (x0, y0) = (scene.extent.min[0], scene.extent.min[1]);
         let hcount = cfg.headings;
         let clearance = sim.agent_radius + 0.05;
+        // Per planner cell: is it clear of obstacles, and its region at the centre
+        // (the planner resolves region borders to one cell; rollouts use the exact map).
         let mut free = vec![false; nx * ny];
+        let mut kind = vec![RegionKind::Road; nx * ny];
         for j in 0..ny {
             for i in 0..nx {
                 let (x, y) = (x0 + (i as f32 + 0.5) * cfg.cell, y0 + (j as f32 + 0.5) * cfg.cell);
                 free[j * nx + i] = scene.extent.contains(x, y)
                     && scene.obstacles.iter().all(|o| o.footprint.distance(x, y) > clearance);
+                kind[j * nx + i] = world.map.kind_at(x, y);
             }
         }
-        // Motion primitives per heading bin: turns up to the yaw-rate limit, speed 0 or max.
+        // Motion primitives per heading bin: turns up to the yaw-rate limit, speed 0 or
+        // max. On a uniform grid the successor of a cell centre lies at a constant
+        // offset, so its cell and bilinear stencil are precomputed per primitive.
         let hstep = std::f32::consts::TAU / hcount as f32;
         let max_turn = sim.max_yaw_rate_deg.to_radians() * sim.dt;
         let kmax = (max_turn / hstep + 1e-4).floor() as isize;
@@ -113,80 +130,81 @@ impl Oracle {
                     }
                     let mid = (h as f32 + 0.5 * k as f32) * hstep;
                     let d = speed * sim.dt;
-                    m.push(Motion { dh: k, dx: d * mid.cos(), dy: d * mid.sin(), speed });
+                    let (dx, dy) = (d * mid.cos(), d * mid.sin());
+                    let (fx, fy) = (dx / cfg.cell, dy / cfg.cell);
+                    m.push(Motion {
+                        hn: (h as isize + k).rem_euclid(hcount as isize) as usize,
+                        cell_di: (0.5 + fx).floor() as isize,
+                        cell_dj: (0.5 + fy).floor() as isize,
+                        base_di: fx.floor() as isize,
+                        base_dj: fy.floor() as isize,
+                        tx: fx - fx.floor(),
+                        ty: fy - fy.floor(),
+                        speed_reward: rewards.speed * speed,
+                    });
                 }
             }
             motions.push(m);
         }
+        let region_reward = RegionKind::ALL.map(|k| rewards.map_reward(k));
         let mut values = vec![BLOCKED; nx * ny * hcount];
-        for (c, f) in free.iter().enumerate() {
-            if *f {
-                for v in &mut values[c * hcount..(c + 1) * hcount] {
-                    *v = -1.0 / (1.0 - cfg.gamma) * 3.5; // below any achievable return
-                }
-            }
-        }
-        let mut oracle = Oracle { cfg, x0, y0, nx, ny, values, free, sweeps: 0 };
-        let gamma = oracle.cfg.gamma;
-        for sweep in 0..oracle.cfg.max_sweeps {
+        let mut sweeps = 0;
+        let (nxi, nyi) = (nx as isize, ny as isize);
+        let inside = |i: isize, j: isize| i >= 0 && j >= 0 && i < nxi && j < nyi;
+        for sweep in 0..cfg.max_sweeps {
             let mut max_delta = 0.0f32;
             let (rev_i, rev_j) = (sweep % 2 == 1, (sweep / 2) % 2 == 1);
             for jj in 0..ny {
                 let j = if rev_j { ny - 1 - jj } else { jj };
                 for ii in 0..nx {
                     let i = if rev_i { nx - 1 - ii } else { ii };
-                    if !oracle.free[j * nx + i] {
+                    if !free[j * nx + i] {
                         continue;
                     }
-                    let (x, y) = oracle.center(i, j);
+                    let (ii, ji) = (i as isize, j as isize);
                     for h in 0..hcount {
                         let mut best = f32::NEG_INFINITY;
                         for m in &motions[h] {
-                            let (xn, yn) = (x + m.dx, y + m.dy);
-                            let (ci, cj) = oracle.cell_of(xn, yn);
-                            if !oracle.free[cj * nx + ci] {
+                            let (ci, cj) = (ii + m.cell_di, ji + m.cell_dj);
+                            if !inside(ci, cj) || !free[cj as usize * nx + ci as usize] {
                                 continue;
                             }
-                            let kind = world.map.kind_at(xn, yn);
-                            let r = rewards.map_reward(kind) + rewards.speed * m.speed;
+                            let kind = kind[cj as usize * nx + ci as usize];
+                            let r = region_reward[kind as usize] + m.speed_reward;
                             let q = if kind == RegionKind::Goal {
                                 r
                             } else {
-                                let hn = (h as isize + m.dh).rem_euclid(hcount as isize) as usize;
-                                r + gamma * oracle.interp_xy(xn, yn, hn)
+                                let (bi, bj) = (ii + m.base_di, ji + m.base_dj);
+                                let v = |di: isize, dj: isize| {
+                                    let (a, b) = ((bi + di).clamp(0, nxi - 1) as usize, (bj + dj).clamp(0, nyi - 1) as usize);
+                                    values[(b * nx + a) * hcount + m.hn]
+                                };
+                                let lo = v(0, 0) * (1.0 - m.tx) + v(1, 0) * m.tx;
+                                let hi = v(0, 1) * (1.0 - m.tx) + v(1, 1) * m.tx;
+                                r + cfg.gamma * (lo * (1.0 - m.ty) + hi * m.ty)
                             };
                             best = best.max(q);
                         }
                         if best > f32::NEG_INFINITY {
                             let idx = (j * nx + i) * hcount + h;
-                            max_delta = max_delta.max((best - oracle.values[idx]).abs());
-                            oracle.values[idx] = best;
+                            max_delta = max_delta.max((best - values[idx]).abs());
+                            values[idx] = best;
                         }
                     }
                 }
             }
-            oracle.sweeps = sweep + 1;
-            if max_delta < oracle.cfg.tolerance && sweep >= 3 {
+            sweeps = sweep + 1;
+            if max_delta < cfg.tolerance && sweep >= 3 {
                 break;
             }
         }
-        oracle
+        Oracle { cfg, x0, y0, nx, ny, values, sweeps }
     }
 
-    #[inline]
-    fn center(&self, i: usize, j: usize) -> (f32, f32) {
-        (self.x0 + (i as f32 + 0.5) * self.cfg.cell, self.y0 + (j as f32 + 0.5) * self.cfg.cell)
-    }
-
-    #[inline]
-    fn cell_of(&self, x: f32, y: f32) -> (usize, usize) {
-        let i = (((x - self.x0) / self.cfg.cell).floor().max(0.0) as usize).min(self.nx - 1);
-        let j = (((y - self.y0) / self.cfg.cell).floor().max(0.0) as usize).min(self.ny - 1);
-        (i, j)
-    }
-
-    /// Bilinear interpolation of V in (x, y) at heading bin `h`; blocked corners
-    /// are replaced by the best free corner so walls do not leak huge penalties.
+    /// Bilinear interpolation of V in (x, y) at heading bin `h`. Blocked cells hold
+    /// the worst possible return, so values fall off within one cell of an obstacle:
+    /// plans keep clear of walls and poles by up to one extra cell, and the greedy
+    /// rollout is never lured into pressing against an obstacle.
     #[inline]
     fn interp_xy(&self, x: f32, y: f32, h: usize) -> f32 {
         let fx = ((x - self.x0) / self.cfg.cell - 0.5).clamp(0.0, (self.nx - 1) as f32);
@@ -196,9 +214,7 @@ impl Oracle {
         let (tx, ty) = (fx - i0 as f32, fy - j0 as f32);
         let hc = self.cfg.headings;
         let v = |i: usize, j: usize| self.values[(j * self.nx + i) * hc + h];
-        let corners = [v(i0, j0), v(i1, j0), v(i0, j1), v(i1, j1)];
-        let best = corners.iter().cloned().fold(f32::NEG_INFINITY, f32::max);
-        let c = corners.map(|c| if c <= BLOCKED * 0.5 { best } else { c });
+        let c = [v(i0, j0), v(i1, j0), v(i0, j1), v(i1, j1)];
         let a = c[0] * (1.0 - tx) + c[1] * tx;
         let b = c[2] * (1.0 - tx) + c[3] * tx;
         a * (1.0 - ty) + b * ty
@@ -230,42 +246,47 @@ impl Oracle {
         self.sweeps
     }
 
-    /// Greedy rollout from `start` through the real simulator for at most `t_max`
-    /// steps: at each step pick, among 5 speeds × 9 yaw rates (head straight), the
-    /// action maximising `r + γ·V(next pose)` (`r` alone on reaching the goal).
+    /// The greedy action at a pedestrian's state: among 5 speeds × 9 yaw rates
+    /// (head straight), the one maximising `r + γ·V(next pose)` through the real
+    /// simulator step (`r` alone on reaching the goal).
+    pub fn best_action(&self, world: &SimWorld, p: &Pedestrian) -> Action {
+        const SPEEDS: [f32; 5] = [-1.0, -0.5, 0.0, 0.5, 1.0];
+        const TURNS: [f32; 9] = [-1.0, -0.75, -0.5, -0.25, 0.0, 0.25, 0.5, 0.75, 1.0];
+        let mut best = ([1.0, 0.0, 0.0], f32::NEG_INFINITY);
+        for a0 in SPEEDS {
+            for a1 in TURNS {
+                let a = [a0, a1, 0.0];
+                let mut q = *p;
+                let t = q.step(a, world);
+                let v = if t.terminated { t.reward } else { t.reward + self.cfg.gamma * self.value(t.pose) };
+                if v > best.1 {
+                    best = (a, v);
+                }
+            }
+        }
+        best.0
+    }
+
+    /// Greedy rollout ([`Oracle::best_action`] at every step) from `start`
+    /// through the real simulator for at most `t_max` steps.
     pub fn rollout(&self, world: &SimWorld, start: Pose, t_max: u32) -> Rollout {
         let mut p = Pedestrian::default();
         p.reset(start);
         let gamma = self.cfg.gamma;
-        let mut ret = 0.0f32;
-        let mut discount = 1.0f32;
-        let mut traj = vec![p.pose];
+        let (mut ret, mut discount) = (0.0f32, 1.0f32);
+        let mut trajectory = vec![p.pose];
         let mut success = false;
-        let speeds = [-1.0f32, -0.5, 0.0, 0.5, 1.0];
-        let turns = [-1.0f32, -0.75, -0.5, -0.25, 0.0, 0.25, 0.5, 0.75, 1.0];
         for _ in 0..t_max {
-            let mut best: Option<(f32, Pedestrian, Transition)> = None;
-            for &a0 in &speeds {
-                for &a1 in &turns {
-                    let mut q = p;
-                    let t = q.step([a0, a1, 0.0], world);
-                    let v = if t.terminated { t.reward } else { t.reward + gamma * self.value(t.pose) };
-                    if best.as_ref().is_none_or(|b| v > b.0) {
-                        best = Some((v, q, t));
-                    }
-                }
-            }
-            let (_, q, t) = best.expect("at least one action");
-            p = q;
+            let t = p.step(self.best_action(world, &p), world);
             ret += discount * t.reward;
             discount *= gamma;
-            traj.push(p.pose);
+            trajectory.push(p.pose);
             if t.terminated {
                 success = true;
                 break;
             }
         }
-        Rollout { discounted_return: ret, success, steps: traj.len() as u32 - 1, trajectory: traj }
+        Rollout { discounted_return: ret, success, steps: trajectory.len() as u32 - 1, trajectory }
     }
 
     /// The oracle return of a pose: the greedy rollout's discounted return.
