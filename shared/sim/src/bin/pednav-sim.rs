@@ -30,7 +30,7 @@ struct Cli {
     #[arg(long, global = true)]
     scene: Option<PathBuf>,
     /// Graphics backend: auto picks a real GPU first, then Mesa (Vulkan lavapipe, GL llvmpipe).
-    #[arg(long, global = true, value_enum, default_value_t = BackendChoice::Auto)]
+    #[arg(long, global = true, value_enum, env = "PEDNAV_BACKEND", default_value_t = BackendChoice::Auto)]
     backend: BackendChoice,
     /// Seed of every random choice (random policy, domain randomisation).
     #[arg(long, global = true, default_value_t = 0)]
@@ -129,7 +129,7 @@ enum Policy {
 
 fn main() -> Result<()> {
     tracing_subscriber::fmt()
-        .with_env_filter(tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| "warn".into()))
+        .with_env_filter(tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| "warn,wgpu_hal=off".into()))
         .with_writer(std::io::stderr)
         .init();
     let cli = Cli::parse();

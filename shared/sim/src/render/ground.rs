@@ -9,7 +9,8 @@
 //! - sidewalks (both kinds look alike — the goal side is told apart by the layout):
 //!   light paving (≈0.62) with darker joints every 0.6 m;
 //! - kerb: a 0.2 m band of bright kerb stone (≈0.85) where sidewalk meets road or zebra;
-//! - goal: a 0.5 m checkerboard of light and mid tiles (a paved plaza).
+//! - goal: a 1 m checkerboard of white and dark tiles (a paved plaza), bold enough
+//!   to be seen from the zebra crossing through the 135° lens at 84 px.
 
 use crate::region_map::RegionMap;
 use crate::scene::{Axis, RegionKind, Scene};
@@ -84,8 +85,8 @@ pub fn bake_level0(scene: &Scene, map: &RegionMap) -> Vec<u8> {
                     }
                 }
                 RegionKind::Goal => {
-                    let checker = ((x / 0.5).floor() as i64 + (y / 0.5).floor() as i64).rem_euclid(2) == 0;
-                    if checker { 0.92 } else { 0.5 }
+                    let checker = (x.floor() as i64 + y.floor() as i64).rem_euclid(2) == 0;
+                    if checker { 0.95 } else { 0.32 }
                 }
             };
             out[j * nx + i] = to_u8(v);

@@ -88,6 +88,23 @@ pub enum BackendChoice {
     Gl,
 }
 
+impl BackendChoice {
+    /// The choice named by the `PEDNAV_BACKEND` environment variable (`auto`,
+    /// `vulkan` or `gl`), or `Auto` when it is unset. Lets a user or a test run pin
+    /// a backend without a flag; an unknown value is an error naming the variable.
+    pub fn from_env() -> Result<BackendChoice, String> {
+        match std::env::var("PEDNAV_BACKEND") {
+            Err(_) => Ok(BackendChoice::Auto),
+            Ok(v) => match v.to_ascii_lowercase().as_str() {
+                "" | "auto" => Ok(BackendChoice::Auto),
+                "vulkan" => Ok(BackendChoice::Vulkan),
+                "gl" => Ok(BackendChoice::Gl),
+                other => Err(format!("PEDNAV_BACKEND={other} is not one of auto, vulkan, gl")),
+            },
+        }
+    }
+}
+
 /// Settings of a renderer.
 #[derive(Debug, Clone, PartialEq)]
 pub struct RendererConfig {
@@ -149,12 +166,19 @@ const FAR: f32 = 1500.0;
 pub struct Renderer {
     device: wgpu::Device,
     queue: wgpu::Queue,
-    pipeline: wgpu::RenderPipeline,
+    /// Obstacles and sky.
+    flat_pipeline: wgpu::RenderPipeline,
+    /// The textured ground.
+    ground_pipeline: wgpu::RenderPipeline,
     bind_group: wgpu::BindGroup,
     uniforms: wgpu::Buffer,
     uniform_stride: u64,
     vertices: wgpu::Buffer,
-    vertex_count: u32,
+    indices: wgpu::Buffer,
+    /// Indices of the scene; the six after them draw the sky quad.
+    scene_indices: u32,
+    /// Index ranges of the scene's objects, for per-view culling.
+    parts: Vec<mesh::Part>,
     color_view: wgpu::TextureView,
     color: wgpu::Texture,
     depth_view: wgpu::TextureView,
@@ -249,15 +273,27 @@ impl Renderer {
             mag_filter: wgpu::FilterMode::Linear,
             min_filter: wgpu::FilterMode::Linear,
             mipmap_filter: wgpu::MipmapFilterMode::Linear,
-            anisotropy_clamp: 8,
+            anisotropy_clamp: 1,
             ..Default::default()
         });
 
-        let mesh = mesh::build(scene, map);
+        let mut mesh = mesh::build(scene, map);
+        let parts = mesh.parts.clone();
+        let scene_indices = mesh.indices.len() as u32;
+        // The sky quad goes after the scene; it is drawn only for views whose look differs
+        // from the default (the clear colour already is the default sky).
+        let sky_base = mesh.vertices.len() as u32;
+        mesh.vertices.extend_from_slice(&mesh::sky_quad());
+        mesh.indices.extend_from_slice(&[0, 1, 2, 0, 2, 3].map(|k| sky_base + k));
         let vertices = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
             label: Some("scene mesh"),
-            contents: bytemuck::cast_slice(&mesh),
+            contents: bytemuck::cast_slice(&mesh.vertices),
             usage: wgpu::BufferUsages::VERTEX,
+        });
+        let indices = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+            label: Some("scene indices"),
+            contents: bytemuck::cast_slice(&mesh.indices),
+            usage: wgpu::BufferUsages::INDEX,
         });
 
         let align = limits.min_uniform_buffer_offset_alignment as u64;
@@ -326,41 +362,45 @@ impl Renderer {
             bind_group_layouts: &[Some(&layout)],
             ..Default::default()
         });
-        let pipeline = device.create_render_pipeline(&wgpu::RenderPipelineDescriptor {
-            label: Some("pednav"),
-            layout: Some(&pipeline_layout),
-            vertex: wgpu::VertexState {
-                module: &shader,
-                entry_point: Some("vs_main"),
-                compilation_options: Default::default(),
-                buffers: &[Some(wgpu::VertexBufferLayout {
-                    array_stride: std::mem::size_of::<mesh::Vertex>() as u64,
-                    step_mode: wgpu::VertexStepMode::Vertex,
-                    attributes: &wgpu::vertex_attr_array![0 => Float32x3, 1 => Float32x2, 2 => Float32, 3 => Float32],
-                })],
-            },
-            primitive: wgpu::PrimitiveState { cull_mode: None, ..Default::default() },
-            depth_stencil: Some(wgpu::DepthStencilState {
-                format: wgpu::TextureFormat::Depth32Float,
-                depth_write_enabled: Some(true),
-                depth_compare: Some(wgpu::CompareFunction::Less),
-                stencil: Default::default(),
-                bias: Default::default(),
-            }),
-            multisample: Default::default(),
-            fragment: Some(wgpu::FragmentState {
-                module: &shader,
-                entry_point: Some("fs_main"),
-                compilation_options: Default::default(),
-                targets: &[Some(wgpu::ColorTargetState {
-                    format: wgpu::TextureFormat::R8Unorm,
-                    blend: None,
-                    write_mask: wgpu::ColorWrites::ALL,
-                })],
-            }),
-            multiview_mask: None,
-            cache: None,
-        });
+        let make_pipeline = |fragment: &str| {
+            device.create_render_pipeline(&wgpu::RenderPipelineDescriptor {
+                label: Some(fragment),
+                layout: Some(&pipeline_layout),
+                vertex: wgpu::VertexState {
+                    module: &shader,
+                    entry_point: Some("vs_main"),
+                    compilation_options: Default::default(),
+                    buffers: &[Some(wgpu::VertexBufferLayout {
+                        array_stride: std::mem::size_of::<mesh::Vertex>() as u64,
+                        step_mode: wgpu::VertexStepMode::Vertex,
+                        attributes: &wgpu::vertex_attr_array![0 => Float32x3, 1 => Float32x2, 2 => Float32, 3 => Float32],
+                    })],
+                },
+                primitive: wgpu::PrimitiveState { cull_mode: None, ..Default::default() },
+                depth_stencil: Some(wgpu::DepthStencilState {
+                    format: wgpu::TextureFormat::Depth32Float,
+                    depth_write_enabled: Some(true),
+                    depth_compare: Some(wgpu::CompareFunction::Less),
+                    stencil: Default::default(),
+                    bias: Default::default(),
+                }),
+                multisample: Default::default(),
+                fragment: Some(wgpu::FragmentState {
+                    module: &shader,
+                    entry_point: Some(fragment),
+                    compilation_options: Default::default(),
+                    targets: &[Some(wgpu::ColorTargetState {
+                        format: wgpu::TextureFormat::R8Unorm,
+                        blend: None,
+                        write_mask: wgpu::ColorWrites::ALL,
+                    })],
+                }),
+                multiview_mask: None,
+                cache: None,
+            })
+        };
+        let flat_pipeline = make_pipeline("fs_flat");
+        let ground_pipeline = make_pipeline("fs_ground");
 
         let atlas_size = wgpu::Extent3d { width: aw, height: ah, depth_or_array_layers: 1 };
         let color = device.create_texture(&wgpu::TextureDescriptor {
@@ -399,12 +439,15 @@ impl Renderer {
             depth_view: depth.create_view(&Default::default()),
             device,
             queue,
-            pipeline,
+            flat_pipeline,
+            ground_pipeline,
             bind_group,
             uniforms,
             uniform_stride,
-            vertex_count: mesh.len() as u32,
+            scene_indices,
+            parts,
             vertices,
+            indices,
             readback,
             padded_bpr,
             cols,
@@ -471,13 +514,37 @@ impl Renderer {
                 }),
                 ..Default::default()
             });
-            pass.set_pipeline(&self.pipeline);
             pass.set_vertex_buffer(0, self.vertices.slice(..));
-            for i in 0..views.len() as u32 {
+            pass.set_index_buffer(self.indices.slice(..), wgpu::IndexFormat::Uint32);
+            let fov = self.config.fov_deg.to_radians();
+            let (ground, objects) = self.parts.split_last().expect("the mesh ends with the ground part");
+            for (i, v) in views.iter().enumerate() {
+                let i = i as u32;
                 let (c, r) = (i % self.cols, i / self.cols);
                 pass.set_viewport((c * size) as f32, (r * size) as f32, size as f32, size as f32, 0.0, 1.0);
                 pass.set_bind_group(0, &self.bind_group, &[(i as u64 * self.uniform_stride) as u32]);
-                pass.draw(0..self.vertex_count, 0..1);
+                // Obstacles first (runs of consecutive visible parts), so that early depth
+                // testing skips the textured ground behind them.
+                pass.set_pipeline(&self.flat_pipeline);
+                let mut run: Option<(u32, u32)> = None;
+                for p in objects.iter().filter(|p| mesh::part_visible(p, v.x, v.y, v.yaw, fov)) {
+                    run = match run {
+                        Some((s, e)) if e == p.start => Some((s, p.end)),
+                        Some((s, e)) => {
+                            pass.draw_indexed(s..e, 0, 0..1);
+                            Some((p.start, p.end))
+                        }
+                        None => Some((p.start, p.end)),
+                    };
+                }
+                if let Some((s, e)) = run {
+                    pass.draw_indexed(s..e, 0, 0..1);
+                }
+                if v.look != Look::default() {
+                    pass.draw_indexed(self.scene_indices..self.scene_indices + 6, 0, 0..1);
+                }
+                pass.set_pipeline(&self.ground_pipeline);
+                pass.draw_indexed(ground.start..ground.end, 0, 0..1);
             }
         }
         let copy_height = rows * size;

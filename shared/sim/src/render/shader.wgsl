@@ -1,6 +1,8 @@
-// pednav first-person renderer: one pipeline for everything. Ground quads sample
-// the baked ground texture; buildings, poles, trees and the sky box carry a baked
-// per-face shade. Output: one greyscale channel (R8Unorm target).
+// pednav first-person renderer: two pipelines over one vertex format. The ground
+// (fs_ground) samples the baked ground texture; walls, poles and trees (fs_flat)
+// carry a baked per-face shade, and building walls get a procedural,
+// anti-aliased window grid. Output: one greyscale
+// channel (R8Unorm target).
 
 struct View {
     view_proj: mat4x4<f32>,
@@ -30,22 +32,56 @@ fn vs_main(
     @location(3) textured: f32,
 ) -> VsOut {
     var out: VsOut;
-    out.clip = view.view_proj * vec4<f32>(pos, 1.0);
+    if (textured < -0.5) {
+        // Sky quad, given in clip space, just in front of the far plane.
+        out.clip = vec4<f32>(pos.xy, 0.9999999, 1.0);
+        out.world = view.eye.xyz;
+    } else {
+        out.clip = view.view_proj * vec4<f32>(pos, 1.0);
+        out.world = pos;
+    }
     out.uv = uv;
     out.shade = shade;
-    out.textured = textured;
-    out.world = pos;
+    out.textured = max(textured, 0.0);
     return out;
 }
 
-@fragment
-fn fs_main(in: VsOut) -> @location(0) vec4<f32> {
-    // Sample unconditionally: implicit-derivative sampling must stay in uniform control flow.
-    let tex = textureSample(ground_tex, ground_smp, in.uv).r;
-    var g = in.shade * mix(1.0, tex, in.textured);
-    let d = distance(in.world, view.eye.xyz);
+// Integral over (-inf, x] of the periodic box that is 1 on [a, b) + n (period 1).
+fn box_integral(x: f32, a: f32, b: f32) -> f32 {
+    return floor(x) * (b - a) + clamp(fract(x), a, b) - a;
+}
+
+// Fraction of the pixel footprint [x - w/2, x + w/2] that lies inside the box:
+// an exact box-filtered pattern, so distant windows blend instead of aliasing.
+fn box_coverage(x: f32, w: f32, a: f32, b: f32) -> f32 {
+    let h = max(0.5 * w, 1e-4);
+    return (box_integral(x + h, a, b) - box_integral(x - h, a, b)) / (2.0 * h);
+}
+
+fn finish(g0: f32, world: vec3<f32>) -> vec4<f32> {
+    let d = distance(world, view.eye.xyz);
     let haze = 1.0 - exp(-d * view.eye.w);
-    g = mix(g, view.look.z, haze);
+    var g = mix(g0, view.look.z, haze);
     g = (g - 0.5) * view.look.y + 0.5 + view.look.x;
     return vec4<f32>(clamp(g, 0.0, 1.0), 0.0, 0.0, 1.0);
+}
+
+// The ground: the baked ground texture, trilinear.
+@fragment
+fn fs_ground(in: VsOut) -> @location(0) vec4<f32> {
+    return finish(in.shade * textureSample(ground_tex, ground_smp, in.uv).r, in.world);
+}
+
+// Everything else: flat baked shade; building walls get the window grid.
+@fragment
+fn fs_flat(in: VsOut) -> @location(0) vec4<f32> {
+    // Differentiate unconditionally: derivatives need uniform control flow.
+    let along = select(in.world.y, in.world.x, in.uv.x < 1.5);
+    let u = along / 3.0;
+    let v = (in.world.z - 3.0) / 3.5;
+    let du = fwidth(u);
+    let dv = fwidth(v);
+    let in_band = select(0.0, 1.0, in.uv.x > 0.5 && in.world.z >= 3.0 && in.world.z <= in.uv.y);
+    let window = box_coverage(u, du, 0.3, 0.7) * box_coverage(v, dv, 0.0, 0.43) * in_band;
+    return finish(in.shade * mix(1.0, 0.45, window), in.world);
 }
