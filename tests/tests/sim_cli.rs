@@ -5,8 +5,7 @@ use std::process::{Command, Output};
 use pednav_tests::{binary, scratch_dir};
 
 fn sim(args: &[&str]) -> Output {
-    let out = Command::new(binary("pednav-sim", "pednav-sim")).args(args).output().expect("run pednav-sim");
-    out
+    Command::new(binary("pednav-sim", "pednav-sim")).args(args).output().expect("run pednav-sim")
 }
 
 fn ok(args: &[&str]) -> String {
@@ -48,7 +47,19 @@ fn map_draws_the_scene_and_the_oracle_path() {
 fn record_writes_a_gif_of_the_view_beside_the_map() {
     let dir = scratch_dir("record");
     let out = dir.join("ep.gif");
-    let stdout = ok(&["record", "--policy", "random", "--start", "first", "--steps", "10", "--seed", "3", "--out", out.to_str().unwrap()]);
+    let stdout = ok(&[
+        "record",
+        "--policy",
+        "random",
+        "--start",
+        "first",
+        "--steps",
+        "10",
+        "--seed",
+        "3",
+        "--out",
+        out.to_str().unwrap(),
+    ]);
     assert!(stdout.contains("discounted return"), "{stdout}");
     let file = std::io::BufReader::new(std::fs::File::open(&out).unwrap());
     let decoder = image::codecs::gif::GifDecoder::new(file).unwrap();
@@ -60,9 +71,13 @@ fn record_writes_a_gif_of_the_view_beside_the_map() {
 #[test]
 fn oracle_lists_all_fourteen_points() {
     let stdout = ok(&["oracle"]);
-    let rows: Vec<&str> = stdout.lines().filter(|l| l.trim_start().chars().next().is_some_and(|c| c.is_ascii_digit())).collect();
+    let rows: Vec<&str> =
+        stdout.lines().filter(|l| l.trim_start().chars().next().is_some_and(|c| c.is_ascii_digit())).collect();
     assert_eq!(rows.len(), 14, "{stdout}");
-    assert!(rows.iter().all(|r| r.trim_end().ends_with("true")), "the oracle reaches the goal from every point:\n{stdout}");
+    assert!(
+        rows.iter().all(|r| r.trim_end().ends_with("true")),
+        "the oracle reaches the goal from every point:\n{stdout}"
+    );
 }
 
 #[test]

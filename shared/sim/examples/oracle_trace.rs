@@ -15,8 +15,19 @@ fn main() -> anyhow::Result<()> {
         let a = oracle.best_action(&world, &ped);
         let v = oracle.value(ped.pose);
         let t = ped.step(a, &world);
-        println!("x {:7.2} y {:7.2} yaw {:7.1} V {:8.2} a {:?} r {:6.2} {:?}", t.pose.x, t.pose.y, t.pose.yaw.to_degrees(), v, a, t.reward, t.region);
-        if t.terminated { break; }
+        println!(
+            "x {:7.2} y {:7.2} yaw {:7.1} V {:8.2} a {:?} r {:6.2} {:?}",
+            t.pose.x,
+            t.pose.y,
+            t.pose.yaw.to_degrees(),
+            v,
+            a,
+            t.reward,
+            t.region
+        );
+        if t.terminated {
+            break;
+        }
     }
     Ok(())
 }

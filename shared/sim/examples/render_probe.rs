@@ -8,13 +8,28 @@ fn main() -> anyhow::Result<()> {
     let w = SimWorld::new(Scene::reference(), SimConfig::default())?;
     let m = mesh::build(&w.scene, &w.map);
     println!("vertices: {}, indices: {}", m.vertices.len(), m.indices.len());
-    let mut r = Renderer::new(&w.scene, &w.map, RendererConfig { image_size: std::env::var("SIZE").ok().and_then(|s| s.parse().ok()).unwrap_or(84), fov_deg: 135.0, max_views: 16, backend: BackendChoice::from_env().unwrap() })?;
+    let mut r = Renderer::new(
+        &w.scene,
+        &w.map,
+        RendererConfig {
+            image_size: std::env::var("SIZE").ok().and_then(|s| s.parse().ok()).unwrap_or(84),
+            fov_deg: 135.0,
+            max_views: 16,
+            backend: BackendChoice::from_env().unwrap(),
+        },
+    )?;
     println!("adapter: {}", r.adapter_description());
-    let cams: Vec<CameraView> = (0..16).map(|i| CameraView { x: 10.0 + i as f32, y: -7.0, z: 1.6, yaw: i as f32, look: Look::default() }).collect();
-    for _ in 0..5 { r.render(&cams)?; }
+    let cams: Vec<CameraView> = (0..16)
+        .map(|i| CameraView { x: 10.0 + i as f32, y: -7.0, z: 1.6, yaw: i as f32, look: Look::default() })
+        .collect();
+    for _ in 0..5 {
+        r.render(&cams)?;
+    }
     let t = Instant::now();
     let n = 100;
-    for _ in 0..n { r.render(&cams)?; }
+    for _ in 0..n {
+        r.render(&cams)?;
+    }
     let s = t.elapsed().as_secs_f64();
     println!("{:.3} ms per 16-view batch, {:.0} views/s", s / n as f64 * 1e3, 16.0 * n as f64 / s);
     Ok(())

@@ -82,10 +82,30 @@ impl SimConfig {
         check(self.dt > 0.0 && self.dt <= 5.0, "dt", self.dt, "must lie in (0, 5] seconds")?;
         check(self.t_max >= 1, "t_max", self.t_max, "must be at least 1")?;
         check(self.max_speed > 0.0 && self.max_speed <= 20.0, "max_speed", self.max_speed, "must lie in (0, 20] m/s")?;
-        check((0.0..=720.0).contains(&self.max_yaw_rate_deg), "max_yaw_rate_deg", self.max_yaw_rate_deg, "must lie in [0, 720]")?;
-        check((0.0..=90.0).contains(&self.max_head_yaw_deg), "max_head_yaw_deg", self.max_head_yaw_deg, "must lie in [0, 90]")?;
-        check(self.agent_radius > 0.05 && self.agent_radius < 1.0, "agent_radius", self.agent_radius, "must lie in (0.05, 1) m")?;
-        check(self.agent_height > 2.0 * self.agent_radius, "agent_height", self.agent_height, "must exceed twice the radius")?;
+        check(
+            (0.0..=720.0).contains(&self.max_yaw_rate_deg),
+            "max_yaw_rate_deg",
+            self.max_yaw_rate_deg,
+            "must lie in [0, 720]",
+        )?;
+        check(
+            (0.0..=90.0).contains(&self.max_head_yaw_deg),
+            "max_head_yaw_deg",
+            self.max_head_yaw_deg,
+            "must lie in [0, 90]",
+        )?;
+        check(
+            self.agent_radius > 0.05 && self.agent_radius < 1.0,
+            "agent_radius",
+            self.agent_radius,
+            "must lie in (0.05, 1) m",
+        )?;
+        check(
+            self.agent_height > 2.0 * self.agent_radius,
+            "agent_height",
+            self.agent_height,
+            "must exceed twice the radius",
+        )?;
         check(self.eye_height > 0.1 && self.eye_height < 3.0, "eye_height", self.eye_height, "must lie in (0.1, 3) m")?;
         check(self.fov_deg > 10.0 && self.fov_deg < 170.0, "fov_deg", self.fov_deg, "must lie in (10, 170) degrees")?;
         check((8..=1024).contains(&self.image_size), "image_size", self.image_size, "must lie in [8, 1024] pixels")?;

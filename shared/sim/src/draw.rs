@@ -149,7 +149,8 @@ impl MapCanvas {
 pub fn draw_map(scene: &Scene, map: &RegionMap, px_per_m: f32) -> MapCanvas {
     let w = (scene.extent.width() * px_per_m).round() as u32;
     let h = (scene.extent.height() * px_per_m).round() as u32;
-    let mut canvas = MapCanvas { image: RgbImage::new(w, h), scale: px_per_m, x0: scene.extent.min[0], y1: scene.extent.max[1] };
+    let mut canvas =
+        MapCanvas { image: RgbImage::new(w, h), scale: px_per_m, x0: scene.extent.min[0], y1: scene.extent.max[1] };
     for py in 0..h {
         for px in 0..w {
             let x = scene.extent.min[0] + (px as f32 + 0.5) / px_per_m;
@@ -259,7 +260,8 @@ pub fn save_gray_png(frame: &[u8], size: u32, path: &Path) -> Result<()> {
 
 fn ensure_parent(path: &Path) -> Result<()> {
     if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
-        std::fs::create_dir_all(dir).map_err(|e| SimError::Output { path: dir.to_path_buf(), message: e.to_string() })?;
+        std::fs::create_dir_all(dir)
+            .map_err(|e| SimError::Output { path: dir.to_path_buf(), message: e.to_string() })?;
     }
     Ok(())
 }

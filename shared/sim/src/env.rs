@@ -55,7 +55,11 @@ impl VecEnv {
     /// Create `num_envs` environments; in pixel mode also the renderer (one atlas for all views).
     pub fn new(world: Arc<SimWorld>, num_envs: usize, backend: BackendChoice) -> Result<VecEnv> {
         if num_envs == 0 {
-            return Err(SimError::Config { field: "num_envs", value: "0".into(), message: "must be at least 1".into() });
+            return Err(SimError::Config {
+                field: "num_envs",
+                value: "0".into(),
+                message: "must be at least 1".into(),
+            });
         }
         let renderer = match world.config.obs_mode {
             ObsMode::Pixels => Some(Renderer::new(
@@ -141,7 +145,13 @@ impl VecEnv {
     /// Camera of environment `env` at its current pose.
     pub fn camera(&self, env: usize) -> CameraView {
         let p = &self.peds[env];
-        CameraView { x: p.pose.x, y: p.pose.y, z: self.world.config.eye_height, yaw: p.camera_yaw(), look: self.looks[env] }
+        CameraView {
+            x: p.pose.x,
+            y: p.pose.y,
+            z: self.world.config.eye_height,
+            yaw: p.camera_yaw(),
+            look: self.looks[env],
+        }
     }
 
     /// Render the current view of every environment: one submission, one readback.
@@ -251,7 +261,8 @@ impl Env for PedestrianEnv {
     fn reset(&mut self, task: Pose, seed: u64) -> Result<(Observation, Info)> {
         self.inner.reset(0, task, seed)?;
         let p = *self.inner.pedestrian(0);
-        let info = Info { pose: p.pose, region: self.inner.world.map.kind_at(p.pose.x, p.pose.y), collided: false, step: 0 };
+        let info =
+            Info { pose: p.pose, region: self.inner.world.map.kind_at(p.pose.x, p.pose.y), collided: false, step: 0 };
         Ok((self.observe()?, info))
     }
 

@@ -162,9 +162,9 @@ impl Oracle {
                         continue;
                     }
                     let (ii, ji) = (i as isize, j as isize);
-                    for h in 0..hcount {
+                    for (h, primitives) in motions.iter().enumerate() {
                         let mut best = f32::NEG_INFINITY;
-                        for m in &motions[h] {
+                        for m in primitives {
                             let (ci, cj) = (ii + m.cell_di, ji + m.cell_dj);
                             if !inside(ci, cj) || !free[cj as usize * nx + ci as usize] {
                                 continue;
@@ -176,7 +176,8 @@ impl Oracle {
                             } else {
                                 let (bi, bj) = (ii + m.base_di, ji + m.base_dj);
                                 let v = |di: isize, dj: isize| {
-                                    let (a, b) = ((bi + di).clamp(0, nxi - 1) as usize, (bj + dj).clamp(0, nyi - 1) as usize);
+                                    let (a, b) =
+                                        ((bi + di).clamp(0, nxi - 1) as usize, (bj + dj).clamp(0, nyi - 1) as usize);
                                     values[(b * nx + a) * hcount + m.hn]
                                 };
                                 let lo = v(0, 0) * (1.0 - m.tx) + v(1, 0) * m.tx;

@@ -104,9 +104,8 @@ impl StaticWorld {
         );
         let pos = Pose::from_translation(Vector::new(x, y, self.center_height));
         let mut collided = false;
-        let mv = self.controller.move_shape(dt, &queries, &self.shape, &pos, Vector::new(dx, dy, 0.0), |_| {
-            collided = true
-        });
+        let mv =
+            self.controller.move_shape(dt, &queries, &self.shape, &pos, Vector::new(dx, dy, 0.0), |_| collided = true);
         Move { x: x + mv.translation.x, y: y + mv.translation.y, collided }
     }
 

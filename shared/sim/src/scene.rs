@@ -37,13 +37,8 @@ pub enum RegionKind {
 
 impl RegionKind {
     /// All kinds, in label order (`kind as u8` is the label stored in the region map).
-    pub const ALL: [RegionKind; 5] = [
-        RegionKind::Road,
-        RegionKind::Sidewalk,
-        RegionKind::GoalSidewalk,
-        RegionKind::Zebra,
-        RegionKind::Goal,
-    ];
+    pub const ALL: [RegionKind; 5] =
+        [RegionKind::Road, RegionKind::Sidewalk, RegionKind::GoalSidewalk, RegionKind::Zebra, RegionKind::Goal];
 
     /// The label stored in the region map.
     pub fn label(self) -> u8 {
@@ -207,7 +202,11 @@ impl Area {
         match (&self.rect, &self.polygon) {
             (Some(r), None) => {
                 if !(r[2] > r[0] && r[3] > r[1]) {
-                    return Err(invalid(origin, field, format!("rect {r:?} must satisfy x_min < x_max and y_min < y_max")));
+                    return Err(invalid(
+                        origin,
+                        field,
+                        format!("rect {r:?} must satisfy x_min < x_max and y_min < y_max"),
+                    ));
                 }
                 Ok(Polygon(Rect { min: [r[0], r[1]], max: [r[2], r[3]] }.polygon()))
             }
@@ -477,8 +476,8 @@ impl Scene {
 
     /// Load and validate a scene file.
     pub fn load(path: &Path) -> Result<Scene> {
-        let text = std::fs::read_to_string(path)
-            .map_err(|source| SimError::SceneIo { path: path.to_path_buf(), source })?;
+        let text =
+            std::fs::read_to_string(path).map_err(|source| SimError::SceneIo { path: path.to_path_buf(), source })?;
         Scene::from_toml_str(&text, &path.display().to_string())
     }
 
@@ -530,13 +529,21 @@ impl Scene {
             let field = format!("regions[{i}]");
             let polygon = Area { rect: rs.rect, polygon: rs.polygon.clone() }.resolve(&field, origin)?;
             if rs.kind == RegionKind::Zebra && rs.walk_axis.is_none() {
-                return Err(invalid(origin, &format!("{field}.walk_axis"), "a zebra crossing needs `walk_axis = \"x\"` or `\"y\"`".into()));
+                return Err(invalid(
+                    origin,
+                    &format!("{field}.walk_axis"),
+                    "a zebra crossing needs `walk_axis = \"x\"` or `\"y\"`".into(),
+                ));
             }
             regions.push(Region { kind: rs.kind, polygon, walk_axis: rs.walk_axis });
         }
         let goals: Vec<&Region> = regions.iter().filter(|r| r.kind == RegionKind::Goal).collect();
         if goals.len() != 1 {
-            return Err(invalid(origin, "regions", format!("exactly one region of kind \"goal\" is required, found {}", goals.len())));
+            return Err(invalid(
+                origin,
+                "regions",
+                format!("exactly one region of kind \"goal\" is required, found {}", goals.len()),
+            ));
         }
         let gb = goals[0].polygon.bounds();
         let goal_center = [(gb.min[0] + gb.max[0]) * 0.5, (gb.min[1] + gb.max[1]) * 0.5];
@@ -556,18 +563,26 @@ impl Scene {
             let footprint = match (os.rect, os.center, os.radius) {
                 (Some(r), None, None) => {
                     if !(r[2] > r[0] && r[3] > r[1]) {
-                        return Err(invalid(origin, &format!("{field}.rect"), format!("{r:?} must satisfy x_min < x_max and y_min < y_max")));
+                        return Err(invalid(
+                            origin,
+                            &format!("{field}.rect"),
+                            format!("{r:?} must satisfy x_min < x_max and y_min < y_max"),
+                        ));
                     }
                     Footprint::Box(Rect { min: [r[0], r[1]], max: [r[2], r[3]] })
                 }
                 (None, Some(c), Some(rad)) => {
-                    if !(rad > 0.0) {
+                    if rad.is_nan() || rad <= 0.0 {
                         return Err(invalid(origin, &format!("{field}.radius"), format!("{rad} must be positive")));
                     }
                     Footprint::Cylinder { center: c, radius: rad }
                 }
                 _ => {
-                    return Err(invalid(origin, &field, "give either `rect` (a box) or `center` and `radius` (a cylinder)".into()));
+                    return Err(invalid(
+                        origin,
+                        &field,
+                        "give either `rect` (a box) or `center` and `radius` (a cylinder)".into(),
+                    ));
                 }
             };
             obstacles.push(Obstacle { kind: os.kind, footprint, height: os.height, shade: os.shade });
@@ -581,7 +596,12 @@ impl Scene {
             Rect { min: [x0 - t, y0], max: [x0, y1] },
             Rect { min: [x1, y0], max: [x1 + t, y1] },
         ] {
-            obstacles.push(Obstacle { kind: ObstacleKind::Wall, footprint: Footprint::Box(rect), height: spec.wall_height, shade: 0.5 });
+            obstacles.push(Obstacle {
+                kind: ObstacleKind::Wall,
+                footprint: Footprint::Box(rect),
+                height: spec.wall_height,
+                shade: 0.5,
+            });
         }
 
         let mut curriculum_region = Vec::new();
@@ -592,12 +612,17 @@ impl Scene {
             return Err(invalid(origin, "curriculum_region", "at least one area is required".into()));
         }
 
-        let scene = Scene { spec, origin: origin.to_string(), extent, regions, obstacles, curriculum_region, goal_center };
+        let scene =
+            Scene { spec, origin: origin.to_string(), extent, regions, obstacles, curriculum_region, goal_center };
 
         scene.check_start("first_task", scene.spec.first_task.into())?;
         scene.check_start("fixed_start", scene.spec.fixed_start.into())?;
         if scene.spec.validation_points.len() != 14 {
-            return Err(invalid(origin, "validation_points", format!("the protocol of §V-C needs 14 points, found {}", scene.spec.validation_points.len())));
+            return Err(invalid(
+                origin,
+                "validation_points",
+                format!("the protocol of §V-C needs 14 points, found {}", scene.spec.validation_points.len()),
+            ));
         }
         for (i, p) in scene.spec.validation_points.iter().enumerate() {
             let field = format!("validation_points[{i}]");
@@ -608,7 +633,11 @@ impl Scene {
             let inside = scene.in_curriculum_region(p.x, p.y);
             if (i < 8) != inside {
                 let want = if i < 8 { "inside" } else { "outside" };
-                return Err(invalid(origin, &field, format!("point {i} must lie {want} the curriculum region (0–7 inside, 8–13 outside)")));
+                return Err(invalid(
+                    origin,
+                    &field,
+                    format!("point {i} must lie {want} the curriculum region (0–7 inside, 8–13 outside)"),
+                ));
             }
         }
         Ok(scene)
@@ -645,12 +674,7 @@ impl Scene {
 
     /// Region kind at a point by exact polygon tests (the region map rasterises this).
     pub fn region_kind_exact(&self, x: f32, y: f32) -> RegionKind {
-        self.regions
-            .iter()
-            .rev()
-            .find(|r| r.polygon.contains(x, y))
-            .map(|r| r.kind)
-            .unwrap_or(RegionKind::Road)
+        self.regions.iter().rev().find(|r| r.polygon.contains(x, y)).map(|r| r.kind).unwrap_or(RegionKind::Road)
     }
 
     /// Is the point inside the curriculum region?

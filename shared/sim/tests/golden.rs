@@ -12,11 +12,8 @@ use pednav_sim::{BackendChoice, CameraView, Look, Renderer, RendererConfig, Scen
 
 /// (file name, x, y, camera yaw in degrees): the Non-ACL start looking at the
 /// zebra, the zebra crossing seen from its south end, the goal plaza ahead.
-const POSES: [(&str, f32, f32, f32); 3] = [
-    ("fixed_start_west", 14.0, -7.0, 180.0),
-    ("zebra_north", 13.0, -6.0, 90.0),
-    ("goal_ahead", 12.0, 7.0, 0.0),
-];
+const POSES: [(&str, f32, f32, f32); 3] =
+    [("fixed_start_west", 14.0, -7.0, 180.0), ("zebra_north", 13.0, -6.0, 90.0), ("goal_ahead", 12.0, 7.0, 0.0)];
 
 /// Mean absolute difference allowed, in grey levels.
 const MAX_MEAN_ABS: f64 = 3.0;
@@ -54,7 +51,11 @@ fn views_match_the_golden_images() {
         if !within_tolerance(mean, big) {
             let out = std::env::temp_dir().join(format!("pednav-golden-{name}-actual.png"));
             image::GrayImage::from_raw(84, 84, got).unwrap().save(&out).unwrap();
-            failures.push(format!("{name}: mean {mean:.2}, big {:.2}% (actual saved to {})", big * 100.0, out.display()));
+            failures.push(format!(
+                "{name}: mean {mean:.2}, big {:.2}% (actual saved to {})",
+                big * 100.0,
+                out.display()
+            ));
         }
     }
     assert!(failures.is_empty(), "{failures:#?}");
@@ -77,7 +78,12 @@ fn render(cams: &[CameraView]) -> Vec<Vec<u8>> {
     let mut renderer = Renderer::new(
         &world.scene,
         &world.map,
-        RendererConfig { image_size: 84, fov_deg: 135.0, max_views: cams.len(), backend: BackendChoice::from_env().unwrap() },
+        RendererConfig {
+            image_size: 84,
+            fov_deg: 135.0,
+            max_views: cams.len(),
+            backend: BackendChoice::from_env().unwrap(),
+        },
     )
     .unwrap();
     let frames = renderer.render(cams).unwrap();
@@ -90,7 +96,13 @@ fn the_tolerance_catches_a_camera_turned_by_five_degrees_or_moved_by_half_a_metr
         let want = image::open(golden_dir().join(format!("{name}.png"))).unwrap().to_luma8();
         let moved = [
             CameraView { x, y, z: 1.6, yaw: (yaw + 5.0).to_radians(), look: Look::default() },
-            CameraView { x: x + 0.5 * yaw.to_radians().cos(), y: y + 0.5 * yaw.to_radians().sin(), z: 1.6, yaw: yaw.to_radians(), look: Look::default() },
+            CameraView {
+                x: x + 0.5 * yaw.to_radians().cos(),
+                y: y + 0.5 * yaw.to_radians().sin(),
+                z: 1.6,
+                yaw: yaw.to_radians(),
+                look: Look::default(),
+            },
         ];
         for (k, got) in render(&moved).iter().enumerate() {
             let (mean, big) = compare(got, want.as_raw());

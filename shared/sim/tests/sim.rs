@@ -131,7 +131,9 @@ fn same_seed_gives_identical_frames_and_rewards() {
         let mut rng = ChaCha8Rng::seed_from_u64(99);
         for _ in 0..25 {
             let actions: Vec<[f32; 3]> = (0..3)
-                .map(|_| [rng.random_range(-1.0..1.0f32), rng.random_range(-1.0..1.0f32), rng.random_range(-1.0..1.0f32)])
+                .map(|_| {
+                    [rng.random_range(-1.0..1.0f32), rng.random_range(-1.0..1.0f32), rng.random_range(-1.0..1.0f32)]
+                })
                 .collect();
             let ts = env.step(&actions).unwrap().to_vec();
             rewards.extend(ts.iter().map(|t| t.reward.to_bits()));
@@ -205,22 +207,23 @@ fn oracle_beats_a_hand_scripted_route() {
     let mut p = Pedestrian::default();
     p.reset(Pose::from_degrees(32.0, -7.0, 180.0));
     let (mut ret, mut disc) = (0.0f32, 1.0f32);
-    let turn_to = |p: &mut Pedestrian, target_deg: f32, until: &dyn Fn(&Pose) -> bool, ret: &mut f32, disc: &mut f32| {
-        for _ in 0..400 {
-            if until(&p.pose) {
-                return true;
+    let turn_to =
+        |p: &mut Pedestrian, target_deg: f32, until: &dyn Fn(&Pose) -> bool, ret: &mut f32, disc: &mut f32| {
+            for _ in 0..400 {
+                if until(&p.pose) {
+                    return true;
+                }
+                let err = pednav_sim::pedestrian::wrap_angle(target_deg.to_radians() - p.pose.yaw);
+                let a1 = (err / (80f32.to_radians() * 0.25)).clamp(-1.0, 1.0);
+                let t = p.step([1.0, a1, 0.0], w);
+                *ret += *disc * t.reward;
+                *disc *= 0.99;
+                if t.terminated {
+                    return true;
+                }
             }
-            let err = pednav_sim::pedestrian::wrap_angle(target_deg.to_radians() - p.pose.yaw);
-            let a1 = (err / (80f32.to_radians() * 0.25)).clamp(-1.0, 1.0);
-            let t = p.step([1.0, a1, 0.0], w);
-            *ret += *disc * t.reward;
-            *disc *= 0.99;
-            if t.terminated {
-                return true;
-            }
-        }
-        false
-    };
+            false
+        };
     assert!(turn_to(&mut p, 180.0, &|q| q.x <= 13.5, &mut ret, &mut disc));
     assert!(turn_to(&mut p, 90.0, &|q| q.y >= 6.5, &mut ret, &mut disc));
     assert!(turn_to(&mut p, 0.0, &|_| false, &mut ret, &mut disc) || p.done);

@@ -24,7 +24,11 @@ use pednav_sim::{
 };
 
 #[derive(Parser)]
-#[command(name = "pednav-sim", version, about = "The pednav urban crossing simulator: views, maps, episode GIFs, oracle, benchmark")]
+#[command(
+    name = "pednav-sim",
+    version,
+    about = "The pednav urban crossing simulator: views, maps, episode GIFs, oracle, benchmark"
+)]
 struct Cli {
     /// Scene file (TOML). Default: the built-in reference corner (shared/sim/scenes/corner.toml).
     #[arg(long, global = true)]
@@ -129,7 +133,9 @@ enum Policy {
 
 fn main() -> Result<()> {
     tracing_subscriber::fmt()
-        .with_env_filter(tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| "warn,wgpu_hal=off".into()))
+        .with_env_filter(
+            tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| "warn,wgpu_hal=off".into()),
+        )
         .with_writer(std::io::stderr)
         .init();
     let cli = Cli::parse();
@@ -137,7 +143,11 @@ fn main() -> Result<()> {
     match cli.command {
         Command::View { x, y, yaw_deg, head_deg, size, people_size, out } => {
             let fs = scene.fixed_start();
-            let pose = Pose { x: x.unwrap_or(fs.x), y: y.unwrap_or(fs.y), yaw: yaw_deg.map(f32::to_radians).unwrap_or(fs.yaw) };
+            let pose = Pose {
+                x: x.unwrap_or(fs.x),
+                y: y.unwrap_or(fs.y),
+                yaw: yaw_deg.map(f32::to_radians).unwrap_or(fs.yaw),
+            };
             let world = SimWorld::new(scene, SimConfig { image_size: size, ..SimConfig::default() })?;
             let cam = CameraView {
                 x: pose.x,
@@ -168,7 +178,10 @@ fn main() -> Result<()> {
                 let pts: Vec<(f32, f32)> = r.trajectory.iter().map(|p| (p.x, p.y)).collect();
                 canvas.polyline(&pts, 2.0, [220, 40, 40]);
                 canvas.pose_arrow(start, 1.5, [220, 40, 40]);
-                println!("oracle from point {k}: return {:.2}, {} steps, success {}", r.discounted_return, r.steps, r.success);
+                println!(
+                    "oracle from point {k}: return {:.2}, {} steps, success {}",
+                    r.discounted_return, r.steps, r.success
+                );
             }
             if let Some(path) = trajectory {
                 let pts = read_xy_csv(&path)?;
@@ -186,7 +199,8 @@ fn main() -> Result<()> {
                 }
                 p
             } else {
-                let k: usize = start.parse().with_context(|| format!("--start must be 0–13 or `first`, got `{start}`"))?;
+                let k: usize =
+                    start.parse().with_context(|| format!("--start must be 0–13 or `first`, got `{start}`"))?;
                 validation_pose(&world.scene, k, yaw_deg)?
             };
             record(world, cli.backend, cli.seed, policy, start, steps, &out)?;
@@ -196,7 +210,10 @@ fn main() -> Result<()> {
             let t0 = Instant::now();
             let oracle = Oracle::plan(&world, OracleConfig::default());
             println!("planned in {:.1} s ({} sweeps)", t0.elapsed().as_secs_f64(), oracle.sweeps());
-            println!("{:>5} {:>7} {:>7} {:>8} {:>10} {:>6} {:>7}", "point", "x", "y", "yaw", "return", "steps", "success");
+            println!(
+                "{:>5} {:>7} {:>7} {:>8} {:>10} {:>6} {:>7}",
+                "point", "x", "y", "yaw", "return", "steps", "success"
+            );
             for p in world.scene.validation_points() {
                 let pose = Pose::from_degrees(p.x, p.y, p.favourable_yaw_deg);
                 let r = oracle.rollout(&world, pose, 2000);
@@ -207,7 +224,10 @@ fn main() -> Result<()> {
                 if all_yaws {
                     for yaw in [0.0f32, 45.0, -45.0, 90.0, -90.0, 135.0, -135.0, 180.0] {
                         let r = oracle.rollout(&world, Pose::from_degrees(p.x, p.y, yaw), 2000);
-                        println!("{:>5} {:>7} {:>7} {:>8.0} {:>10.2} {:>6} {:>7}", "", "", "", yaw, r.discounted_return, r.steps, r.success);
+                        println!(
+                            "{:>5} {:>7} {:>7} {:>8.0} {:>10.2} {:>6} {:>7}",
+                            "", "", "", yaw, r.discounted_return, r.steps, r.success
+                        );
                     }
                 }
             }
@@ -272,7 +292,15 @@ fn read_xy_csv(path: &std::path::Path) -> Result<Vec<(f32, f32)>> {
     Ok(pts)
 }
 
-fn record(world: Arc<SimWorld>, backend: BackendChoice, seed: u64, policy: Policy, start: Pose, steps: u32, out: &std::path::Path) -> Result<()> {
+fn record(
+    world: Arc<SimWorld>,
+    backend: BackendChoice,
+    seed: u64,
+    policy: Policy,
+    start: Pose,
+    steps: u32,
+    out: &std::path::Path,
+) -> Result<()> {
     let mut env = VecEnv::new(world.clone(), 1, backend)?;
     env.reset(0, start, seed)?;
     let oracle = matches!(policy, Policy::Oracle).then(|| Oracle::plan(&world, OracleConfig::default()));
@@ -294,7 +322,9 @@ fn record(world: Arc<SimWorld>, backend: BackendChoice, seed: u64, policy: Polic
             break;
         }
         let action: Action = match policy {
-            Policy::Oracle => oracle.as_ref().expect("planned for the oracle policy").best_action(&world, env.pedestrian(0)),
+            Policy::Oracle => {
+                oracle.as_ref().expect("planned for the oracle policy").best_action(&world, env.pedestrian(0))
+            }
             Policy::Random => [rng.random_range(-1.0..1.0), rng.random_range(-1.0..1.0), rng.random_range(-1.0..1.0)],
             Policy::Straight => [1.0, 0.0, 0.0],
         };
@@ -308,11 +338,7 @@ fn record(world: Arc<SimWorld>, backend: BackendChoice, seed: u64, policy: Polic
         }
     }
     save_gif(&gif_frames, 100, out)?;
-    println!(
-        "wrote {} ({} frames); {outcome}; discounted return {ret:.2}",
-        out.display(),
-        gif_frames.len()
-    );
+    println!("wrote {} ({} frames); {outcome}; discounted return {ret:.2}", out.display(), gif_frames.len());
     Ok(())
 }
 
@@ -345,16 +371,15 @@ fn measure(seconds: f64, units_per_iter: usize, mut f: impl FnMut() -> Result<()
 
 fn bench(scene: Scene, backend: BackendChoice, envs: &[usize], seconds: f64) -> Result<()> {
     let world = Arc::new(SimWorld::new(scene, SimConfig::default())?);
-    let starts: Vec<Pose> = world
-        .scene
-        .validation_points()
-        .iter()
-        .map(|p| Pose::from_degrees(p.x, p.y, p.favourable_yaw_deg))
-        .collect();
-    println!("pednav-sim bench: {}×{} greyscale views, {} threads of llvmpipe if used (LP_NUM_THREADS={})",
-        world.config.image_size, world.config.image_size,
+    let starts: Vec<Pose> =
+        world.scene.validation_points().iter().map(|p| Pose::from_degrees(p.x, p.y, p.favourable_yaw_deg)).collect();
+    println!(
+        "pednav-sim bench: {}×{} greyscale views, {} threads of llvmpipe if used (LP_NUM_THREADS={})",
+        world.config.image_size,
+        world.config.image_size,
         std::thread::available_parallelism().map(|n| n.get()).unwrap_or(1),
-        std::env::var("LP_NUM_THREADS").unwrap_or_else(|_| "unset".into()));
+        std::env::var("LP_NUM_THREADS").unwrap_or_else(|_| "unset".into())
+    );
     println!(
         "{:>5} {:>14} {:>14} {:>14} {:>14} {:>14} {:>10}",
         "envs", "physics st/s", "render v/s", "render v/cpu-s", "full st/s", "full st/cpu-s", "full/render"
@@ -388,7 +413,12 @@ fn bench(scene: Scene, backend: BackendChoice, envs: &[usize], seconds: f64) -> 
         let mut renderer = Renderer::new(
             &world.scene,
             &world.map,
-            RendererConfig { image_size: world.config.image_size, fov_deg: world.config.fov_deg, max_views: m, backend },
+            RendererConfig {
+                image_size: world.config.image_size,
+                fov_deg: world.config.fov_deg,
+                max_views: m,
+                backend,
+            },
         )?;
         let render = measure(seconds, m, || {
             let frames = renderer.render(&cams)?;
@@ -417,6 +447,8 @@ fn bench(scene: Scene, backend: BackendChoice, envs: &[usize], seconds: f64) -> 
             render.per_cpu_s / full.per_cpu_s
         );
     }
-    println!("full = physics step + render + readback + copy of every frame; full/render = CPU cost of a full step relative to rendering alone (goal ≤ 1.3)");
+    println!(
+        "full = physics step + render + readback + copy of every frame; full/render = CPU cost of a full step relative to rendering alone (goal ≤ 1.3)"
+    );
     Ok(())
 }

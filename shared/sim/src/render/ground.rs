@@ -75,7 +75,10 @@ pub fn bake_level0(scene: &Scene, map: &RegionMap) -> Vec<u8> {
                 RegionKind::Sidewalk | RegionKind::GoalSidewalk => {
                     let (ii, jj) = (i as isize, j as isize);
                     let near_road = (1..=kerb_cells).any(|k| {
-                        is_carriageway(ii + k, jj) || is_carriageway(ii - k, jj) || is_carriageway(ii, jj + k) || is_carriageway(ii, jj - k)
+                        is_carriageway(ii + k, jj)
+                            || is_carriageway(ii - k, jj)
+                            || is_carriageway(ii, jj + k)
+                            || is_carriageway(ii, jj - k)
                     });
                     if near_road {
                         0.85 + 0.02 * g

@@ -169,7 +169,9 @@ pub fn build(scene: &Scene, map: &RegionMap) -> SceneMesh {
             (_, Footprint::Cylinder { center, radius }) => m.cylinder(center, radius, 0.0, o.height, o.shade, 6),
         }
         let (center, radius) = match o.footprint {
-            Footprint::Box(r) => ([(r.min[0] + r.max[0]) * 0.5, (r.min[1] + r.max[1]) * 0.5], 0.5 * r.width().hypot(r.height())),
+            Footprint::Box(r) => {
+                ([(r.min[0] + r.max[0]) * 0.5, (r.min[1] + r.max[1]) * 0.5], 0.5 * r.width().hypot(r.height()))
+            }
             Footprint::Cylinder { center, radius } => (center, if o.kind == ObstacleKind::Tree { 1.4 } else { radius }),
         };
         parts.push(Part { start, end: m.indices.len() as u32, center, radius });

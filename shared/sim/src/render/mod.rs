@@ -60,7 +60,9 @@ pub enum RenderError {
         max: usize,
     },
     /// The atlas would exceed the adapter's texture size limit.
-    #[error("an atlas of {views} views of {size}×{size} needs {needed} pixels per side, over the adapter limit {limit}")]
+    #[error(
+        "an atlas of {views} views of {size}×{size} needs {needed} pixels per side, over the adapter limit {limit}"
+    )]
     AtlasTooLarge {
         /// Number of views.
         views: usize,
@@ -585,11 +587,7 @@ impl Renderer {
             Some(Err(e)) => return Err(RenderError::Readback(e.to_string())),
             None => return Err(RenderError::Readback("buffer map callback never ran".into())),
         }
-        let view = self
-            .readback
-            .slice(..bytes)
-            .get_mapped_range()
-            .map_err(|e| RenderError::Readback(e.to_string()))?;
+        let view = self.readback.slice(..bytes).get_mapped_range().map_err(|e| RenderError::Readback(e.to_string()))?;
         Ok(Frames { view: Some(view), count: views.len(), renderer: self })
     }
 }
