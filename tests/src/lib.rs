@@ -1,30 +1,55 @@
 //! Helpers for pednav's end-to-end tests: they drive the real binaries as a user
 //! would, so the tests in `tests/tests/` check what the README promises.
 //!
-//! Invariant: [`binary`] returns an up-to-date executable of the same profile
-//! as the running test, building it through cargo if needed.
+//! Invariant: [`binary`] returns an executable of the running test's profile that
+//! is newer than every source file of its package.
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::process::Command;
+use std::time::SystemTime;
 
-/// Path to an up-to-date binary `bin` of workspace package `package`, built with the
-/// profile of the running test (release or dev).
-pub fn binary(package: &str, bin: &str) -> PathBuf {
+/// Root of the workspace.
+pub fn workspace_root() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).parent().expect("tests/ sits in the workspace root").to_path_buf()
+}
+
+/// Path to binary `bin` of the workspace package `package` living in `package_dir`
+/// (relative to the workspace root), built with the profile of the running test.
+///
+/// `cargo test --workspace` already builds the binaries of packages that have
+/// integration tests; that build is used when it is newer than the package's
+/// `src/`, `Cargo.toml` and data (`scenes/`). Otherwise the binary is built here
+/// (slower: a plain `cargo build` resolves features apart from the test build).
+pub fn binary(package: &str, package_dir: &str, bin: &str) -> PathBuf {
     let exe = std::env::current_exe().expect("test executable path");
     // target/<profile>/deps/<test-exe>
     let profile_dir = exe.parent().and_then(|d| d.parent()).expect("target/<profile>").to_path_buf();
-    let release = profile_dir.file_name().is_some_and(|n| n == "release");
+    let path = profile_dir.join(bin);
+    let pkg = workspace_root().join(package_dir);
+    let sources = ["src", "scenes", "Cargo.toml"].iter().map(|p| newest_mtime_of(&pkg.join(p))).max().unwrap();
+    let built = std::fs::metadata(&path).and_then(|m| m.modified()).ok();
+    if built.is_some_and(|b| b >= sources) {
+        return path;
+    }
     let cargo = std::env::var("CARGO").unwrap_or_else(|_| "cargo".into());
     let mut cmd = Command::new(cargo);
     cmd.args(["build", "-q", "-p", package, "--bin", bin]);
-    if release {
+    if profile_dir.file_name().is_some_and(|n| n == "release") {
         cmd.arg("--release");
     }
     let status = cmd.status().expect("running cargo build for the binary under test");
     assert!(status.success(), "cargo build -p {package} --bin {bin} failed");
-    let path = profile_dir.join(bin);
     assert!(path.exists(), "{} missing after build", path.display());
     path
+}
+
+/// Newest modification time of a file, or of any file below a directory.
+fn newest_mtime_of(path: &Path) -> SystemTime {
+    let own = std::fs::metadata(path).and_then(|m| m.modified()).unwrap_or(SystemTime::UNIX_EPOCH);
+    match std::fs::read_dir(path) {
+        Ok(entries) => entries.flatten().map(|e| newest_mtime_of(&e.path())).fold(own, SystemTime::max),
+        Err(_) => own,
+    }
 }
 
 /// A fresh, empty scratch directory under the target directory, named after the test.

@@ -5,7 +5,7 @@ use std::process::{Command, Output};
 use pednav_tests::{binary, scratch_dir};
 
 fn sim(args: &[&str]) -> Output {
-    Command::new(binary("pednav-sim", "pednav-sim")).args(args).output().expect("run pednav-sim")
+    Command::new(binary("pednav-sim", "shared/sim", "pednav-sim")).args(args).output().expect("run pednav-sim")
 }
 
 fn ok(args: &[&str]) -> String {
@@ -102,4 +102,19 @@ fn bench_prints_the_ratio_table() {
     let row = stdout.lines().find(|l| l.trim_start().starts_with("2 ")).expect("a row for 2 envs");
     let ratio: f64 = row.split_whitespace().last().unwrap().parse().unwrap();
     assert!(ratio.is_finite() && ratio > 0.0);
+}
+
+#[test]
+fn no_graphics_adapter_says_what_to_install() {
+    // Point the Vulkan loader at a driver list that does not exist: no adapter at all.
+    let out = Command::new(binary("pednav-sim", "shared/sim", "pednav-sim"))
+        .args(["--backend", "vulkan", "view", "--out"])
+        .arg(scratch_dir("no-adapter").join("v.png"))
+        .env("VK_DRIVER_FILES", "/nonexistent/icd.json")
+        .env("VK_ICD_FILENAMES", "/nonexistent/icd.json")
+        .output()
+        .expect("run pednav-sim");
+    assert!(!out.status.success());
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(err.contains("no graphics adapter") && err.contains("apt-get install"), "{err}");
 }

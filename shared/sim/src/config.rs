@@ -106,7 +106,13 @@ impl SimConfig {
             self.agent_height,
             "must exceed twice the radius",
         )?;
-        check(self.eye_height > 0.1 && self.eye_height < 3.0, "eye_height", self.eye_height, "must lie in (0.1, 3) m")?;
+        let max_eye = crate::render::mesh::MAX_EYE_HEIGHT;
+        check(
+            self.eye_height > 0.1 && self.eye_height < max_eye,
+            "eye_height",
+            self.eye_height,
+            "must lie in (0.1, 3) m (the mesh omits tops above 3 m)",
+        )?;
         check(self.fov_deg > 10.0 && self.fov_deg < 170.0, "fov_deg", self.fov_deg, "must lie in (10, 170) degrees")?;
         check((8..=1024).contains(&self.image_size), "image_size", self.image_size, "must lie in [8, 1024] pixels")?;
         Ok(())

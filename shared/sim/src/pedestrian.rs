@@ -84,15 +84,13 @@ pub struct Pedestrian {
     pub head_yaw: f32,
     /// Steps taken in the current episode.
     pub step: u32,
-    /// Has the episode ended (terminated or truncated)?
+    /// Has the episode ended (terminated or truncated)? True before the first reset.
     pub done: bool,
-    /// Has this pedestrian been reset at least once?
-    pub started: bool,
 }
 
 impl Default for Pedestrian {
     fn default() -> Self {
-        Pedestrian { pose: Pose { x: 0.0, y: 0.0, yaw: 0.0 }, head_yaw: 0.0, step: 0, done: true, started: false }
+        Pedestrian { pose: Pose { x: 0.0, y: 0.0, yaw: 0.0 }, head_yaw: 0.0, step: 0, done: true }
     }
 }
 
@@ -103,7 +101,6 @@ impl Pedestrian {
         self.head_yaw = 0.0;
         self.step = 0;
         self.done = false;
-        self.started = true;
     }
 
     /// Camera yaw = body yaw + head yaw offset.

@@ -374,12 +374,13 @@ fn bench(scene: Scene, backend: BackendChoice, envs: &[usize], seconds: f64) -> 
     let starts: Vec<Pose> =
         world.scene.validation_points().iter().map(|p| Pose::from_degrees(p.x, p.y, p.favourable_yaw_deg)).collect();
     println!(
-        "pednav-sim bench: {}×{} greyscale views, {} threads of llvmpipe if used (LP_NUM_THREADS={})",
+        "pednav-sim bench: {}×{} greyscale views; {} CPU cores; LP_NUM_THREADS={} (llvmpipe rasteriser threads)",
         world.config.image_size,
         world.config.image_size,
         std::thread::available_parallelism().map(|n| n.get()).unwrap_or(1),
         std::env::var("LP_NUM_THREADS").unwrap_or_else(|_| "unset".into())
     );
+    println!("rates per wall-second (st/s, v/s) and per CPU-second of the whole process, all threads (cpu-s)");
     println!(
         "{:>5} {:>14} {:>14} {:>14} {:>14} {:>14} {:>10}",
         "envs", "physics st/s", "render v/s", "render v/cpu-s", "full st/s", "full st/cpu-s", "full/render"
