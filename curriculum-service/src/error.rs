@@ -1,0 +1,33 @@
+//! The one error type of the curriculum library.
+
+/// Everything that can go wrong in `pednav-curriculum`.
+#[derive(Debug, thiserror::Error)]
+pub enum CurriculumError {
+    /// A setting is out of range.
+    #[error("invalid curriculum setting `{field}` = {value}: {message}")]
+    Config {
+        /// The offending field.
+        field: &'static str,
+        /// Its value, as text.
+        value: String,
+        /// The allowed range.
+        message: String,
+    },
+    /// No valid start pose was found in the curriculum region.
+    #[error("no valid task found in the curriculum region after {tries} draws; is the region free of obstacles?")]
+    NoValidTask {
+        /// Draws made.
+        tries: usize,
+    },
+    /// The return predictor produced a non-finite value.
+    #[error("the return predictor produced a non-finite value ({value}) for task {features:?}")]
+    NonFinitePrediction {
+        /// The value.
+        value: f32,
+        /// The task's features.
+        features: [f32; 3],
+    },
+}
+
+/// Result alias of the curriculum library.
+pub type Result<T, E = CurriculumError> = std::result::Result<T, E>;

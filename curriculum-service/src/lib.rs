@@ -1,0 +1,30 @@
+//! # pednav-curriculum — NavACL⁺ (Slope, Hard), NavACL and fixed-start curricula
+//!
+//! The curriculum logic of the paper's §III-A/B and Algorithm 1, independent of
+//! any network and of IPC: task features and discounted returns ([`returns`]),
+//! the PassFirstTask gate ([`gate`]), adaptive filtering and the per-variant
+//! schedules ([`filter`]), uniform task sampling from the scene's curriculum
+//! region ([`sampler`]) and the [`TaskScheduler`] that proposes tasks, with the
+//! return/success predictor behind the [`ReturnPredictor`] trait.
+//!
+//! Still to come (issue #5): the candle return-prediction MLP f^r and its training
+//! on augmented tasks, the iceoryx2 service process, state save/resume and the
+//! Fig. 4 classification plot.
+
+#![warn(missing_docs)]
+
+pub mod config;
+pub mod error;
+pub mod filter;
+pub mod gate;
+pub mod returns;
+pub mod sampler;
+pub mod scheduler;
+
+pub use config::{CurriculumConfig, Variant};
+pub use error::{CurriculumError, Result};
+pub use filter::{Bands, Category, Fit};
+pub use gate::PassFirstTask;
+pub use returns::{discounted_returns, task_features};
+pub use sampler::TaskSampler;
+pub use scheduler::{Proposal, ReturnPredictor, TaskScheduler};

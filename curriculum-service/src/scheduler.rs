@@ -1,0 +1,159 @@
+//! [`TaskScheduler`]: Algorithm 1's task proposal — the first task until
+//! PassFirstTask, then adaptive filtering over freshly drawn candidates and a
+//! category drawn from the variant's schedule.
+//!
+//! Usage loop (one episode per proposal):
+//! ```text
+//! let proposal = scheduler.propose(&mut predictor)?;       // pose + category
+//! let episode = run_episode(proposal.pose);                 // actor side
+//! scheduler.record_episode(proposal.category, episode.steps, episode.discounted_return);
+//! ```
+//!
+//! Invariants: t_c only grows, and only with episodes proposed in the ACL phase;
+//! a proposed pose is the first task, the fixed start, or a pose of the curriculum
+//! region; all randomness comes from the scheduler's seeded RNG.
+
+use pednav_sim::{Pose, Scene};
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+
+use crate::config::{CurriculumConfig, Variant};
+use crate::error::{CurriculumError, Result};
+use crate::filter::{Bands, Category, Fit, bands, category_probabilities};
+use crate::gate::PassFirstTask;
+use crate::returns::task_features;
+use crate::sampler::TaskSampler;
+
+/// Predicts the discounted return (NavACL⁺) or success probability (NavACL) of tasks.
+pub trait ReturnPredictor {
+    /// One prediction per task-feature vector φ = (dx, dy, yaw).
+    fn predict(&mut self, features: &[[f32; 3]]) -> Vec<f32>;
+}
+
+/// A proposed task.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Proposal {
+    /// Start pose.
+    pub pose: Pose,
+    /// Category it was drawn from (the one actually used, after any fallback).
+    pub category: Category,
+    /// The predictor's value for it, when candidates were scored.
+    pub predicted: Option<f32>,
+    /// The fit of that round, when candidates were scored.
+    pub fit: Option<Fit>,
+}
+
+/// Proposes tasks for one run.
+pub struct TaskScheduler {
+    cfg: CurriculumConfig,
+    scene: Scene,
+    sampler: TaskSampler,
+    gate: PassFirstTask,
+    t_c: u64,
+    rng: ChaCha8Rng,
+    candidates: Vec<Pose>,
+    features: Vec<[f32; 3]>,
+}
+
+impl TaskScheduler {
+    /// A scheduler for `scene` driven by `seed`.
+    pub fn new(cfg: CurriculumConfig, scene: Scene, seed: u64) -> Result<TaskScheduler> {
+        cfg.validate()?;
+        Ok(TaskScheduler {
+            sampler: TaskSampler::new(&scene, cfg.max_rejections),
+            gate: PassFirstTask::new(cfg.pass_window, cfg.pass_threshold),
+            t_c: 0,
+            rng: ChaCha8Rng::seed_from_u64(seed),
+            candidates: Vec::with_capacity(cfg.candidates),
+            features: Vec::with_capacity(cfg.candidates),
+            scene,
+            cfg,
+        })
+    }
+
+    /// Is the run in the ACL phase? NavACL has no gate; NavACL⁺ enters it at
+    /// PassFirstTask; the fixed start never does.
+    pub fn in_acl_phase(&self) -> bool {
+        match self.cfg.variant {
+            Variant::NavAcl => true,
+            Variant::NavAclPlusSlope | Variant::NavAclPlusHard => self.gate.passed(),
+            Variant::FixedStart => false,
+        }
+    }
+
+    /// Decision steps taken in the ACL phase.
+    pub fn t_c(&self) -> u64 {
+        self.t_c
+    }
+
+    /// The PassFirstTask gate.
+    pub fn gate(&self) -> &PassFirstTask {
+        &self.gate
+    }
+
+    /// Propose the next task.
+    pub fn propose(&mut self, predictor: &mut dyn ReturnPredictor) -> Result<Proposal> {
+        let plain = |pose, category| Proposal { pose, category, predicted: None, fit: None };
+        match self.cfg.variant {
+            Variant::FixedStart => return Ok(plain(self.scene.fixed_start(), Category::Fixed)),
+            Variant::NavAclPlusSlope | Variant::NavAclPlusHard if !self.gate.passed() => {
+                return Ok(plain(self.scene.first_task(), Category::First));
+            }
+            _ => {}
+        }
+        self.candidates.clear();
+        self.features.clear();
+        for _ in 0..self.cfg.candidates {
+            let pose = self.sampler.sample(&self.scene, &mut self.rng)?;
+            self.candidates.push(pose);
+            self.features.push(task_features(pose, self.scene.goal_center));
+        }
+        let predictions = predictor.predict(&self.features);
+        assert_eq!(predictions.len(), self.features.len(), "one prediction per candidate");
+        if let Some((i, v)) = predictions.iter().enumerate().find(|(_, v)| !v.is_finite()) {
+            return Err(CurriculumError::NonFinitePrediction { value: *v, features: self.features[i] });
+        }
+        let fit = Fit::of(&predictions).expect("at least two candidates (validated)");
+        let bands = bands(&self.cfg, fit, self.t_c);
+        let category = self.draw_category();
+        let (index, category) = self.pick(&bands, category, &predictions);
+        Ok(Proposal { pose: self.candidates[index], category, predicted: Some(predictions[index]), fit: Some(fit) })
+    }
+
+    fn draw_category(&mut self) -> Category {
+        let probs = category_probabilities(&self.cfg, self.t_c);
+        let u: f32 = self.rng.random();
+        let mut acc = 0.0;
+        for &(c, p) in &probs {
+            acc += p;
+            if u < acc {
+                return c;
+            }
+        }
+        probs.last().expect("non-empty schedule").0
+    }
+
+    /// A uniformly chosen candidate of the category; when the band is empty this
+    /// round (e.g. σ = 0 early on), a uniformly random candidate, reported as `Random`.
+    fn pick(&mut self, bands: &Bands, category: Category, predictions: &[f32]) -> (usize, Category) {
+        let members: Vec<usize> =
+            (0..predictions.len()).filter(|&i| bands.contains(category, predictions[i])).collect();
+        if members.is_empty() {
+            (self.rng.random_range(0..predictions.len()), Category::Random)
+        } else {
+            (members[self.rng.random_range(0..members.len())], category)
+        }
+    }
+
+    /// Record a finished episode: first-task returns feed the gate, ACL-phase
+    /// episodes add their decision steps to t_c.
+    pub fn record_episode(&mut self, category: Category, steps: u32, discounted_return: f32) {
+        match category {
+            Category::First => {
+                self.gate.record(discounted_return);
+            }
+            Category::Fixed => {}
+            Category::Easy | Category::Frontier | Category::Random | Category::Hard => self.t_c += steps as u64,
+        }
+    }
+}
