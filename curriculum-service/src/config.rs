@@ -58,6 +58,11 @@ pub struct CurriculumConfig {
     pub pass_threshold: f32,
     /// Candidate tasks drawn to fit μ and σ (adaptive filtering). Table IV: 4096.
     pub candidates: usize,
+    /// Δ_ep: train the task-value net every this many reported episodes, then clear
+    /// the collected set (Algorithm 1). Table IV: 10.
+    pub train_every_episodes: usize,
+    /// The task-value network (f^r or f^s).
+    pub net: crate::net::NetConfig,
     /// Rejection-sampling limit per candidate: draws from the curriculum region's
     /// bounding box before giving up (the region covers ≈10 % of the reference
     /// box; 1000 makes a failure astronomically unlikely there and bounded elsewhere).
@@ -80,6 +85,8 @@ impl Default for CurriculumConfig {
             pass_window: 30,
             pass_threshold: -25.0,
             candidates: 4096,
+            train_every_episodes: 10,
+            net: crate::net::NetConfig::default(),
             max_rejections: 1000,
         }
     }
@@ -118,6 +125,12 @@ impl CurriculumConfig {
         }
         if self.candidates < 2 {
             return bad("candidates", self.candidates.to_string(), "at least 2 are needed to fit σ");
+        }
+        if self.train_every_episodes == 0 {
+            return bad("train_every_episodes", "0".into(), "must be at least 1");
+        }
+        if self.net.batch == 0 || self.net.epochs == 0 || self.net.lr.is_nan() || self.net.lr <= 0.0 {
+            return bad("net", format!("{:?}", self.net), "batch and epochs must be ≥ 1 and lr > 0");
         }
         if self.max_rejections == 0 {
             return bad("max_rejections", "0".into(), "must be at least 1");

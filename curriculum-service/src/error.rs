@@ -19,6 +19,12 @@ pub enum CurriculumError {
         /// Draws made.
         tries: usize,
     },
+    /// The task-value network failed (candle error).
+    #[error("task-value network: {0}")]
+    Net(String),
+    /// An episode report is inconsistent.
+    #[error("bad episode report: {0}")]
+    Report(String),
     /// The return predictor produced a non-finite value.
     #[error("the return predictor produced a non-finite value ({value}) for task {features:?}")]
     NonFinitePrediction {

@@ -7,24 +7,31 @@
 //! region ([`sampler`]) and the [`TaskScheduler`] that proposes tasks, with the
 //! return/success predictor behind the [`ReturnPredictor`] trait.
 //!
-//! Still to come (issue #5): the candle return-prediction MLP f^r and its training
-//! on augmented tasks, the iceoryx2 service process, state save/resume and the
-//! Fig. 4 classification plot.
+//! [`Curriculum`] runs Algorithm 1 around them with the candle task-value net
+//! ([`net`]): f^r trained on the augmented tasks of every step (NavACL⁺) or f^s on
+//! initial tasks (NavACL), every Δ_ep episodes.
+//!
+//! Still to come (issue #5): the iceoryx2 service process, state save/resume and
+//! the Fig. 4 classification plot.
 
 #![warn(missing_docs)]
 
 pub mod config;
+pub mod curriculum;
 pub mod error;
 pub mod filter;
 pub mod gate;
+pub mod net;
 pub mod returns;
 pub mod sampler;
 pub mod scheduler;
 
 pub use config::{CurriculumConfig, Variant};
+pub use curriculum::{Curriculum, EpisodeOutcome, ReportSummary};
 pub use error::{CurriculumError, Result};
 pub use filter::{Bands, Category, Fit};
 pub use gate::PassFirstTask;
+pub use net::{NetConfig, Target, TaskValueNet};
 pub use returns::{discounted_returns, task_features};
 pub use sampler::TaskSampler;
 pub use scheduler::{Proposal, ReturnPredictor, TaskScheduler};
