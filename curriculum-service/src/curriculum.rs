@@ -141,3 +141,62 @@ impl Curriculum {
         Ok(ReportSummary { discounted_return: plain, trained_loss })
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn episode(category: Category, rewards: Vec<f32>, truncated: bool) -> EpisodeOutcome {
+        let poses = (0..=rewards.len()).map(|k| Pose { x: 10.0 + k as f32, y: 7.0, yaw: 0.0 }).collect();
+        EpisodeOutcome { category, poses, rewards, truncated, success: !truncated }
+    }
+
+    fn curriculum(variant: Variant) -> Curriculum {
+        let cfg = CurriculumConfig { variant, candidates: 16, ..CurriculumConfig::default() };
+        Curriculum::new(cfg, Scene::reference(), 3).unwrap()
+    }
+
+    #[test]
+    fn navacl_plus_collects_every_step_with_its_return() {
+        let mut c = curriculum(Variant::NavAclPlusSlope);
+        let s = c.report(&episode(Category::First, vec![-0.35, -0.35, 15.25], false)).unwrap();
+        // γ = 0.99: G2 = 15.25, G1 = -0.35 + 0.99·15.25 = 14.7475, G0 = -0.35 + 0.99·14.7475 = 14.250025.
+        let g: Vec<f32> = c.collected.iter().map(|x| x.1).collect();
+        assert!((g[0] - 14.250025).abs() < 1e-4 && (g[1] - 14.7475).abs() < 1e-4 && g[2] == 15.25, "{g:?}");
+        assert!((s.discounted_return - 14.250025).abs() < 1e-4);
+        // Features of s_0 = (10, 7): the goal centre (20, 7) is 10 m along x.
+        assert_eq!(c.collected[0].0, [10.0, 0.0, 0.0]);
+
+        // Truncated: the bootstrap is f^r(φ(s_T)), the net's own prediction at the last pose.
+        let ep = episode(Category::First, vec![-1.0, -1.0], true);
+        let last = task_features(ep.poses[2], c.scene_goal);
+        let f_t = c.predict(&[last]).unwrap()[0];
+        c.report(&ep).unwrap();
+        let g1 = c.collected[4].1;
+        assert!((g1 - (-1.0 + 0.99 * f_t)).abs() < 1e-4, "G1 = {g1}, f^r(h_T) = {f_t}");
+        assert_eq!(c.collected.len(), 5, "both states of the truncated episode");
+    }
+
+    #[test]
+    fn navacl_collects_initial_tasks_with_success_labels_and_trains_every_ten() {
+        let mut c = curriculum(Variant::NavAcl);
+        for k in 0..9 {
+            let s = c.report(&episode(Category::Random, vec![-1.0; 4], k % 2 == 0)).unwrap();
+            assert!(s.trained_loss.is_none());
+        }
+        assert_eq!(c.collected.len(), 9, "one sample per episode");
+        assert_eq!(c.collected[0].1, 0.0, "truncated = not reached");
+        assert_eq!(c.collected[1].1, 1.0);
+        let s = c.report(&episode(Category::Random, vec![-1.0; 4], false)).unwrap();
+        assert!(s.trained_loss.is_some_and(f32::is_finite), "Δ_ep = 10 triggers training");
+        assert!(c.collected.is_empty(), "the collected set is cleared after training");
+    }
+
+    #[test]
+    fn a_report_with_the_wrong_number_of_poses_is_rejected() {
+        let mut c = curriculum(Variant::NavAclPlusHard);
+        let mut ep = episode(Category::First, vec![-1.0; 3], true);
+        ep.poses.pop();
+        assert!(matches!(c.report(&ep), Err(CurriculumError::Report(_))));
+    }
+}
