@@ -231,17 +231,6 @@ impl Oracle {
         self.interp_xy(pose.x, pose.y, h0) * (1.0 - t) + self.interp_xy(pose.x, pose.y, h1) * t
     }
 
-    /// Best planned value over all headings at a position.
-    pub fn best_value_at(&self, x: f32, y: f32) -> (f32, f32) {
-        let hc = self.cfg.headings;
-        (0..hc)
-            .map(|h| {
-                let yaw = h as f32 / hc as f32 * std::f32::consts::TAU;
-                (self.value(Pose { x, y, yaw }), yaw)
-            })
-            .fold((f32::NEG_INFINITY, 0.0), |a, b| if b.0 > a.0 { b } else { a })
-    }
-
     /// Number of planning sweeps used.
     pub fn sweeps(&self) -> usize {
         self.sweeps
@@ -288,10 +277,5 @@ impl Oracle {
             }
         }
         Rollout { discounted_return: ret, success, steps: trajectory.len() as u32 - 1, trajectory }
-    }
-
-    /// The oracle return of a pose: the greedy rollout's discounted return.
-    pub fn oracle_return(&self, world: &SimWorld, start: Pose, t_max: u32) -> f32 {
-        self.rollout(world, start, t_max).discounted_return
     }
 }
