@@ -13,6 +13,12 @@ pub fn workspace_root() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).parent().expect("tests/ sits in the workspace root").to_path_buf()
 }
 
+/// `target/<profile>` of the running test (its executable lives in `target/<profile>/deps`).
+fn profile_dir() -> PathBuf {
+    let exe = std::env::current_exe().expect("test executable path");
+    exe.parent().and_then(|d| d.parent()).expect("target/<profile>").to_path_buf()
+}
+
 /// Path to binary `bin` of the workspace package `package` living in `package_dir`
 /// (relative to the workspace root), built with the profile of the running test.
 ///
@@ -21,9 +27,7 @@ pub fn workspace_root() -> PathBuf {
 /// `src/`, `Cargo.toml` and data (`scenes/`). Otherwise the binary is built here
 /// (slower: a plain `cargo build` resolves features apart from the test build).
 pub fn binary(package: &str, package_dir: &str, bin: &str) -> PathBuf {
-    let exe = std::env::current_exe().expect("test executable path");
-    // target/<profile>/deps/<test-exe>
-    let profile_dir = exe.parent().and_then(|d| d.parent()).expect("target/<profile>").to_path_buf();
+    let profile_dir = profile_dir();
     let path = profile_dir.join(bin);
     let pkg = workspace_root().join(package_dir);
     let sources = ["src", "scenes", "Cargo.toml"].iter().map(|p| newest_mtime_of(&pkg.join(p))).max().unwrap();
@@ -54,8 +58,7 @@ fn newest_mtime_of(path: &Path) -> SystemTime {
 
 /// A fresh, empty scratch directory under the target directory, named after the test.
 pub fn scratch_dir(name: &str) -> PathBuf {
-    let exe = std::env::current_exe().expect("test executable path");
-    let dir = exe.parent().and_then(|d| d.parent()).expect("target/<profile>").join("e2e-scratch").join(name);
+    let dir = profile_dir().join("e2e-scratch").join(name);
     let _ = std::fs::remove_dir_all(&dir);
     std::fs::create_dir_all(&dir).expect("create scratch dir");
     dir

@@ -8,16 +8,12 @@ fn main() -> anyhow::Result<()> {
     let w = SimWorld::new(Scene::reference(), SimConfig::default())?;
     let m = mesh::build(&w.scene, &w.map);
     println!("vertices: {}, indices: {}", m.vertices.len(), m.indices.len());
-    let mut r = Renderer::new(
-        &w.scene,
-        &w.map,
-        RendererConfig {
-            image_size: std::env::var("SIZE").ok().and_then(|s| s.parse().ok()).unwrap_or(84),
-            fov_deg: 135.0,
-            max_views: 16,
-            backend: BackendChoice::from_env().unwrap(),
-        },
-    )?;
+    let size = std::env::var("SIZE").ok().and_then(|s| s.parse().ok()).unwrap_or(84);
+    let cfg = RendererConfig {
+        image_size: size,
+        ..RendererConfig::from_sim(&w.config, 16, BackendChoice::from_env().unwrap())
+    };
+    let mut r = Renderer::new(&w.scene, &w.map, cfg)?;
     println!("adapter: {}", r.adapter_description());
     let cams: Vec<CameraView> = (0..16)
         .map(|i| CameraView { x: 10.0 + i as f32, y: -7.0, z: 1.6, yaw: i as f32, look: Look::default() })

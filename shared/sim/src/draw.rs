@@ -157,16 +157,8 @@ pub fn draw_map(scene: &Scene, map: &RegionMap, px_per_m: f32) -> MapCanvas {
             let y = scene.extent.max[1] - (py as f32 + 0.5) / px_per_m;
             let kind = map.kind_at(x, y);
             let mut c = region_color(kind);
-            if kind == RegionKind::Zebra {
-                // Hint the stripes.
-                let on = scene.regions.iter().rev().find(|r| r.kind == RegionKind::Zebra && r.polygon.contains(x, y));
-                let s = match on.and_then(|r| r.walk_axis) {
-                    Some(crate::scene::Axis::X) => x,
-                    _ => y,
-                };
-                if s.rem_euclid(1.0) >= 0.5 {
-                    c = region_color(RegionKind::Road);
-                }
+            if kind == RegionKind::Zebra && !scene.on_zebra_stripe(x, y) {
+                c = region_color(RegionKind::Road);
             }
             if scene.in_curriculum_region(x, y) && ((px + py) % 9) < 2 {
                 c = [200, 60, 160];

@@ -65,12 +65,7 @@ impl VecEnv {
             ObsMode::Pixels => Some(Renderer::new(
                 &world.scene,
                 &world.map,
-                RendererConfig {
-                    image_size: world.config.image_size,
-                    fov_deg: world.config.fov_deg,
-                    max_views: num_envs,
-                    backend,
-                },
+                RendererConfig::from_sim(&world.config, num_envs, backend),
             )?),
             ObsMode::StateDebug => None,
         };

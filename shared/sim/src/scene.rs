@@ -677,6 +677,19 @@ impl Scene {
         self.regions.iter().rev().find(|r| r.polygon.contains(x, y)).map(|r| r.kind).unwrap_or(RegionKind::Road)
     }
 
+    /// Is the point on a painted (white) stripe of a zebra crossing? Stripes are
+    /// 0.5 m wide and alternate with 0.5 m of asphalt along the crossing's walking
+    /// axis; the zebra is the last one in paint order containing the point.
+    pub fn on_zebra_stripe(&self, x: f32, y: f32) -> bool {
+        let zebra = self.regions.iter().rev().find(|r| r.kind == RegionKind::Zebra && r.polygon.contains(x, y));
+        let Some(axis) = zebra.and_then(|r| r.walk_axis) else { return false };
+        let along = match axis {
+            Axis::X => x,
+            Axis::Y => y,
+        };
+        along.rem_euclid(1.0) < 0.5
+    }
+
     /// Is the point inside the curriculum region?
     pub fn in_curriculum_region(&self, x: f32, y: f32) -> bool {
         self.curriculum_region.iter().any(|p| p.contains(x, y))

@@ -75,17 +75,8 @@ fn within_tolerance(mean: f64, big: f64) -> bool {
 
 fn render(cams: &[CameraView]) -> Vec<Vec<u8>> {
     let world = SimWorld::new(Scene::reference(), SimConfig::default()).unwrap();
-    let mut renderer = Renderer::new(
-        &world.scene,
-        &world.map,
-        RendererConfig {
-            image_size: 84,
-            fov_deg: 135.0,
-            max_views: cams.len(),
-            backend: BackendChoice::from_env().unwrap(),
-        },
-    )
-    .unwrap();
+    let cfg = RendererConfig::from_sim(&world.config, cams.len(), BackendChoice::from_env().unwrap());
+    let mut renderer = Renderer::new(&world.scene, &world.map, cfg).unwrap();
     let frames = renderer.render(cams).unwrap();
     (0..cams.len()).map(|i| frames.frame(i)).collect()
 }

@@ -245,11 +245,7 @@ fn main() -> Result<()> {
                 scene.goal_center
             );
             let world = SimWorld::new(scene, SimConfig::default())?;
-            let r = Renderer::new(
-                &world.scene,
-                &world.map,
-                RendererConfig { image_size: 84, fov_deg: 135.0, max_views: 1, backend: cli.backend },
-            )?;
+            let r = Renderer::new(&world.scene, &world.map, RendererConfig::from_sim(&world.config, 1, cli.backend))?;
             println!("adapter: {}", r.adapter_description());
         }
     }
@@ -262,11 +258,8 @@ fn sibling(path: &std::path::Path, tag: &str) -> PathBuf {
 }
 
 fn render_one(world: &SimWorld, backend: BackendChoice, size: u32, cam: CameraView) -> Result<Vec<u8>> {
-    let mut r = Renderer::new(
-        &world.scene,
-        &world.map,
-        RendererConfig { image_size: size, fov_deg: world.config.fov_deg, max_views: 1, backend },
-    )?;
+    let cfg = RendererConfig { image_size: size, ..RendererConfig::from_sim(&world.config, 1, backend) };
+    let mut r = Renderer::new(&world.scene, &world.map, cfg)?;
     Ok(r.render(&[cam])?.frame(0))
 }
 
@@ -411,16 +404,8 @@ fn bench(scene: Scene, backend: BackendChoice, envs: &[usize], seconds: f64) -> 
         };
         let physics = measure(seconds, m, || step_all(&mut env, &mut rng))?;
         let cams: Vec<CameraView> = (0..m).map(|i| env.camera(i)).collect();
-        let mut renderer = Renderer::new(
-            &world.scene,
-            &world.map,
-            RendererConfig {
-                image_size: world.config.image_size,
-                fov_deg: world.config.fov_deg,
-                max_views: m,
-                backend,
-            },
-        )?;
+        let mut renderer =
+            Renderer::new(&world.scene, &world.map, RendererConfig::from_sim(&world.config, m, backend))?;
         let render = measure(seconds, m, || {
             let frames = renderer.render(&cams)?;
             for i in 0..m {

@@ -13,7 +13,7 @@
 //!   to be seen from the zebra crossing through the 135° lens at 84 px.
 
 use crate::region_map::RegionMap;
-use crate::scene::{Axis, RegionKind, Scene};
+use crate::scene::{RegionKind, Scene};
 
 /// A greyscale texture with its mip chain, tightly packed level after level.
 pub struct GroundTexture {
@@ -43,12 +43,6 @@ fn to_u8(v: f32) -> u8 {
 /// Bake level 0 of the ground texture from the region map.
 pub fn bake_level0(scene: &Scene, map: &RegionMap) -> Vec<u8> {
     let (nx, ny, c) = (map.nx, map.ny, map.cell);
-    let zebra_axes: Vec<(&crate::scene::Polygon, Axis)> = scene
-        .regions
-        .iter()
-        .filter(|r| r.kind == RegionKind::Zebra)
-        .map(|r| (&r.polygon, r.walk_axis.expect("validated: zebras have an axis")))
-        .collect();
     let kerb_cells = (0.2 / c).round().max(1.0) as isize;
     let is_carriageway = |i: isize, j: isize| -> bool {
         if i < 0 || j < 0 || i >= nx as isize || j >= ny as isize {
@@ -65,12 +59,11 @@ pub fn bake_level0(scene: &Scene, map: &RegionMap) -> Vec<u8> {
             let v = match kind {
                 RegionKind::Road => 0.25 + 0.03 * g,
                 RegionKind::Zebra => {
-                    let axis = zebra_axes.iter().find(|(p, _)| p.contains(x, y)).map(|(_, a)| *a).unwrap_or(Axis::Y);
-                    let s = match axis {
-                        Axis::X => x,
-                        Axis::Y => y,
-                    };
-                    if s.rem_euclid(1.0) < 0.5 { 0.9 + 0.02 * g } else { 0.25 + 0.03 * g }
+                    if scene.on_zebra_stripe(x, y) {
+                        0.9 + 0.02 * g
+                    } else {
+                        0.25 + 0.03 * g
+                    }
                 }
                 RegionKind::Sidewalk | RegionKind::GoalSidewalk => {
                     let (ii, jj) = (i as isize, j as isize);

@@ -121,6 +121,13 @@ pub struct RendererConfig {
     pub backend: BackendChoice,
 }
 
+impl RendererConfig {
+    /// The renderer of a simulator's observations: its image size and field of view.
+    pub fn from_sim(sim: &crate::SimConfig, max_views: usize, backend: BackendChoice) -> RendererConfig {
+        RendererConfig { image_size: sim.image_size, fov_deg: sim.fov_deg, max_views, backend }
+    }
+}
+
 /// Per-view appearance (domain randomisation); [`Look::default`] is the plain scene.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Look {
