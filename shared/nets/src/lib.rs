@@ -1,0 +1,28 @@
+//! Networks shared by the learner and the actors: encoders (3D-TCN, frame
+//! stacking, MLP), the Cholesky-Gaussian policy, the FQF fraction proposal and the
+//! NDQFN quantile net, on a fused channel-last CPU convolution kernel; a streaming
+//! cache for the actors' 3D-TCN inference; AdamW with checkpointable state.
+//!
+//! Call [`init_cpu_runtime`] once at process start-up.
+
+pub mod config;
+pub mod encoder;
+pub mod error;
+pub mod heads;
+pub mod layers;
+pub mod nets;
+pub mod ops;
+pub mod optim;
+pub mod params;
+pub mod runtime;
+pub mod stream;
+
+pub use config::{ACTION_DIM, EncoderKind, NetsConfig};
+pub use encoder::{Encoder, Obs, temporal_plan};
+pub use error::{NetError, Result};
+pub use heads::{CholeskyGaussian, FractionNet, Fractions, PolicyNet, PolicySample, QuantileGrid, QuantileNet};
+pub use nets::{DsacNets, OnlineFeatures};
+pub use optim::{AdamW, AdamWConfig, StepOutcome};
+pub use params::ParamStore;
+pub use runtime::init_cpu_runtime;
+pub use stream::PolicyStream;

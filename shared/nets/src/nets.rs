@@ -1,0 +1,117 @@
+//! The set of networks one DSAC agent trains: policy, fraction proposal, quantile
+//! net and its target, built from one seed.
+//!
+//! Invariant: with `shared_encoder = false` each of policy, fraction and quantile
+//! nets owns an encoder (the paper); with `true` the quantile net owns the only
+//! online encoder and the policy and fraction heads read its features detached, so
+//! only the critic loss trains it. The target quantile net always mirrors the
+//! quantile net's architecture (encoder included) and starts as an exact copy.
+
+use candle_core::{Device, Tensor};
+use rand::SeedableRng;
+use rand_chacha::ChaCha8Rng;
+
+use crate::config::NetsConfig;
+use crate::encoder::{Encoder, Obs};
+use crate::error::Result;
+use crate::heads::{FractionNet, PolicyNet, QuantileNet, features_of};
+use crate::params::ParamStore;
+
+/// Encoder features of one batch for the three online networks.
+#[derive(Debug, Clone)]
+pub struct OnlineFeatures {
+    /// For the policy head.
+    pub policy: Tensor,
+    /// For the fraction-proposal head.
+    pub fraction: Tensor,
+    /// For the quantile head.
+    pub quantile: Tensor,
+}
+
+/// Policy, fraction-proposal, quantile and target quantile networks.
+#[derive(Clone)]
+pub struct DsacNets {
+    /// The architecture.
+    pub cfg: NetsConfig,
+    /// π(a|s).
+    pub policy: PolicyNet,
+    /// FQF fraction proposal.
+    pub fraction: FractionNet,
+    /// NDQFN quantile function Z(s, a, τ).
+    pub quantile: QuantileNet,
+    /// Polyak-averaged copy of `quantile`.
+    pub target: QuantileNet,
+}
+
+impl DsacNets {
+    /// Build all networks from `seed` (each from its own stream of the seed).
+    pub fn new(cfg: &NetsConfig, device: &Device, seed: u64) -> Result<DsacNets> {
+        cfg.validate()?;
+        let feature_dim = {
+            let mut probe = ParamStore::new("probe", device);
+            Encoder::new(&mut probe, cfg, &mut ChaCha8Rng::seed_from_u64(0))?.out_dim()
+        };
+        let own = !cfg.shared_encoder;
+        let rng = |stream: u64| {
+            let mut r = ChaCha8Rng::seed_from_u64(seed);
+            r.set_stream(stream);
+            r
+        };
+        let policy = PolicyNet::new(cfg, own, feature_dim, device, &mut rng(1))?;
+        let fraction = FractionNet::new(cfg, own, feature_dim, device, &mut rng(2))?;
+        let quantile = QuantileNet::new("quantile", cfg, true, feature_dim, device, &mut rng(3))?;
+        let target = QuantileNet::new("target_quantile", cfg, true, feature_dim, device, &mut rng(3))?;
+        target.store.copy_from(&quantile.store)?;
+        Ok(DsacNets { cfg: cfg.clone(), policy, fraction, quantile, target })
+    }
+
+    /// Features of `obs` for the three online heads (shared encoder: computed once,
+    /// detached for policy and fraction).
+    pub fn online_features(&self, obs: &Obs) -> Result<OnlineFeatures> {
+        let quantile = features_of(&self.quantile.encoder, obs, None)?;
+        let policy = features_of(&self.policy.encoder, obs, Some(&quantile))?;
+        let fraction = features_of(&self.fraction.encoder, obs, Some(&quantile))?;
+        Ok(OnlineFeatures { policy, fraction, quantile })
+    }
+
+    /// Features for the policy head alone (acting, or a′ at the next state).
+    pub fn policy_features(&self, obs: &Obs) -> Result<Tensor> {
+        match &self.policy.encoder {
+            Some(e) => e.encode(obs),
+            None => Ok(features_of(&self.quantile.encoder, obs, None)?.detach()),
+        }
+    }
+
+    /// Features for the fraction head alone.
+    pub fn fraction_features(&self, obs: &Obs) -> Result<Tensor> {
+        match &self.fraction.encoder {
+            Some(e) => e.encode(obs),
+            None => Ok(features_of(&self.quantile.encoder, obs, None)?.detach()),
+        }
+    }
+
+    /// Features of the target quantile net.
+    pub fn target_features(&self, obs: &Obs) -> Result<Tensor> {
+        features_of(&self.target.encoder, obs, None)
+    }
+
+    /// The encoder the actor runs for the policy (own or shared).
+    pub fn acting_encoder(&self) -> &Encoder {
+        self.policy.encoder.as_ref().or(self.quantile.encoder.as_ref()).expect("the quantile net always has an encoder")
+    }
+
+    /// Every parameter store, in checkpoint order.
+    pub fn stores(&self) -> [&ParamStore; 4] {
+        [&self.policy.store, &self.fraction.store, &self.quantile.store, &self.target.store]
+    }
+
+    /// What the actors need: the policy store plus, with a shared encoder, the
+    /// quantile store (which holds the encoder).
+    pub fn acting_stores(&self) -> Vec<&ParamStore> {
+        if self.policy.encoder.is_some() {
+            vec![&self.policy.store]
+        } else {
+            vec![&self.policy.store, &self.quantile.store]
+        }
+    }
+}

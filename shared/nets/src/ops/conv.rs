@@ -1,0 +1,496 @@
+//! Channel-last convolution over (time, height, width) as a candle custom op,
+//! on im2col + gemm with the bias and ReLU fused.
+//!
+//! One kernel covers every convolution the networks use:
+//! - the 3D convolutions of the 3D-TCN (temporal kernel 2 with dilation, spatial
+//!   stride and padding),
+//! - 2D convolutions (time 1, temporal kernel 1; frame-stacking puts the N_h frames
+//!   in the channel axis),
+//! - the dilated 1-D temporal convolutions of the action/reward history (height and
+//!   width 1).
+//!
+//! Layouts (all contiguous, f32):
+//! - input  `x`: (B, T, H, W, C_in)
+//! - weight `w`: (K, C_out) with K = k_t·k_h·k_w·C_in, index `((dt·k_h + dh)·k_w + dw)·C_in + c`
+//! - bias   `b`: (C_out)
+//! - output `y`: (B, T_out, H_out, W_out, C_out), T_out = T − d_t·(k_t − 1)
+//!   (no temporal padding, temporal stride 1), H_out = (H + 2p_h − k_h)/s_h + 1.
+//!
+//! Invariant: forward and backward compute exactly the convolution defined above
+//! (checked against finite differences and against candle's `conv2d` in the tests);
+//! the backward pass never materialises more than one sample's im2col matrix per
+//! worker thread, so memory stays bounded at large batches.
+//!
+//! Parallelism: samples are spread over rayon's pool with a single-threaded gemm
+//! each; with fewer samples than threads (actor inference) gemm itself runs in parallel.
+
+use candle_core::{CpuStorage, CustomOp3, Layout, Shape, Storage, Tensor};
+use gemm::Parallelism;
+use rayon::prelude::*;
+
+/// Geometry of one convolution layer (everything except the channel counts and the
+/// input size, which come from the tensors).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct ConvSpec {
+    /// Kernel size (k_t, k_h, k_w).
+    pub kernel: [usize; 3],
+    /// Spatial stride (s_h, s_w). Temporal stride is always 1.
+    pub stride: [usize; 2],
+    /// Spatial zero padding (p_h, p_w). There is no temporal padding: the 3D-TCN
+    /// shortens the sequence with every layer (paper, Fig. 2).
+    pub padding: [usize; 2],
+    /// Temporal dilation d_t.
+    pub dilation_t: usize,
+    /// Apply ReLU to the output (fused into the kernel and its backward).
+    pub relu: bool,
+}
+
+impl ConvSpec {
+    /// A 2D convolution (temporal kernel 1).
+    pub fn spatial(k: usize, stride: usize, padding: usize) -> ConvSpec {
+        ConvSpec { kernel: [1, k, k], stride: [stride, stride], padding: [padding, padding], dilation_t: 1, relu: true }
+    }
+
+    /// A 3D convolution with temporal kernel `kt` and dilation `dt`.
+    pub fn spatiotemporal(kt: usize, dt: usize, k: usize, stride: usize, padding: usize) -> ConvSpec {
+        ConvSpec {
+            kernel: [kt, k, k],
+            stride: [stride, stride],
+            padding: [padding, padding],
+            dilation_t: dt,
+            relu: true,
+        }
+    }
+
+    /// A purely temporal convolution (spatial kernel 1×1).
+    pub fn temporal(kt: usize, dt: usize) -> ConvSpec {
+        ConvSpec { kernel: [kt, 1, 1], stride: [1, 1], padding: [0, 0], dilation_t: dt, relu: true }
+    }
+
+    /// The same convolution without the ReLU.
+    pub fn linear(mut self) -> ConvSpec {
+        self.relu = false;
+        self
+    }
+
+    /// Output size (T_out, H_out, W_out) for an input of (T, H, W), or `None` if the
+    /// kernel does not fit.
+    pub fn output_size(&self, t: usize, h: usize, w: usize) -> Option<(usize, usize, usize)> {
+        let [kt, kh, kw] = self.kernel;
+        let span_t = self.dilation_t * (kt - 1) + 1;
+        let (hp, wp) = (h + 2 * self.padding[0], w + 2 * self.padding[1]);
+        if kt == 0 || kh == 0 || kw == 0 || self.stride.contains(&0) || self.dilation_t == 0 {
+            return None;
+        }
+        if t < span_t || hp < kh || wp < kw {
+            return None;
+        }
+        Some((t - span_t + 1, (hp - kh) / self.stride[0] + 1, (wp - kw) / self.stride[1] + 1))
+    }
+
+    /// Rows of the weight matrix for `c_in` input channels.
+    pub fn weight_rows(&self, c_in: usize) -> usize {
+        self.kernel.iter().product::<usize>() * c_in
+    }
+}
+
+/// Sizes of one call.
+#[derive(Debug, Clone, Copy)]
+struct Geometry {
+    b: usize,
+    t: usize,
+    h: usize,
+    w: usize,
+    ci: usize,
+    to: usize,
+    ho: usize,
+    wo: usize,
+    co: usize,
+    spec: ConvSpec,
+}
+
+impl Geometry {
+    fn new(spec: ConvSpec, x: &[usize], w: &[usize]) -> candle_core::Result<Geometry> {
+        let [b, t, h, wd, ci] = x else {
+            candle_core::bail!("conv: input must be (B, T, H, W, C), got {x:?}");
+        };
+        let [k, co] = w else {
+            candle_core::bail!("conv: weight must be (K, C_out), got {w:?}");
+        };
+        if *k != spec.weight_rows(*ci) {
+            candle_core::bail!(
+                "conv: weight has {k} rows, kernel {:?} × {ci} channels needs {}",
+                spec.kernel,
+                spec.weight_rows(*ci)
+            );
+        }
+        let Some((to, ho, wo)) = spec.output_size(*t, *h, *wd) else {
+            candle_core::bail!(
+                "conv: kernel {:?} (dilation {}) does not fit input {x:?}",
+                spec.kernel,
+                spec.dilation_t
+            );
+        };
+        Ok(Geometry { b: *b, t: *t, h: *h, w: *wd, ci: *ci, to, ho, wo, co: *co, spec })
+    }
+    fn k(&self) -> usize {
+        self.spec.weight_rows(self.ci)
+    }
+    fn p(&self) -> usize {
+        self.to * self.ho * self.wo
+    }
+    fn in_len(&self) -> usize {
+        self.t * self.h * self.w * self.ci
+    }
+    fn out_len(&self) -> usize {
+        self.p() * self.co
+    }
+    /// True when im2col is the identity (1×1×1 kernel, stride 1, no padding).
+    fn is_pointwise(&self) -> bool {
+        self.spec.kernel == [1, 1, 1] && self.spec.stride == [1, 1] && self.spec.padding == [0, 0]
+    }
+}
+
+/// Visit every (row of the im2col matrix, contiguous run of the input) pair:
+/// `f(col_offset, Some(input_offset), len)` copies, `f(col_offset, None, len)` is padding.
+#[inline(always)]
+fn for_each_run(g: &Geometry, mut f: impl FnMut(usize, Option<usize>, usize)) {
+    let [kt, kh, kw] = g.spec.kernel;
+    let [sh, sw] = g.spec.stride;
+    let [ph, pw] = g.spec.padding;
+    let k = g.k();
+    let ci = g.ci;
+    let mut p = 0;
+    for to in 0..g.to {
+        for ho in 0..g.ho {
+            for wo in 0..g.wo {
+                let row = p * k;
+                for dt in 0..kt {
+                    let t = to + dt * g.spec.dilation_t;
+                    for dh in 0..kh {
+                        let base = row + (dt * kh + dh) * kw * ci;
+                        let h = (ho * sh + dh) as isize - ph as isize;
+                        if h < 0 || h >= g.h as isize {
+                            f(base, None, kw * ci);
+                            continue;
+                        }
+                        let plane = (t * g.h + h as usize) * g.w;
+                        let w0 = (wo * sw) as isize - pw as isize;
+                        if w0 >= 0 && w0 as usize + kw <= g.w {
+                            f(base, Some((plane + w0 as usize) * ci), kw * ci);
+                        } else {
+                            for dw in 0..kw {
+                                let wi = w0 + dw as isize;
+                                if wi < 0 || wi >= g.w as isize {
+                                    f(base + dw * ci, None, ci);
+                                } else {
+                                    f(base + dw * ci, Some((plane + wi as usize) * ci), ci);
+                                }
+                            }
+                        }
+                    }
+                }
+                p += 1;
+            }
+        }
+    }
+}
+
+fn im2col(g: &Geometry, x: &[f32], cols: &mut [f32]) {
+    for_each_run(g, |c, src, len| match src {
+        Some(s) => cols[c..c + len].copy_from_slice(&x[s..s + len]),
+        None => cols[c..c + len].fill(0.0),
+    });
+}
+
+fn col2im_add(g: &Geometry, cols: &[f32], dx: &mut [f32]) {
+    for_each_run(g, |c, src, len| {
+        if let Some(s) = src {
+            for (d, v) in dx[s..s + len].iter_mut().zip(&cols[c..c + len]) {
+                *d += v;
+            }
+        }
+    });
+}
+
+/// `dst (m×n) = [dst +] lhs (m×k) · rhs (k×n)` with explicit strides (row, column).
+#[allow(clippy::too_many_arguments)]
+fn matmul(
+    m: usize,
+    n: usize,
+    k: usize,
+    dst: &mut [f32],
+    accumulate: bool,
+    lhs: &[f32],
+    lhs_strides: (usize, usize),
+    rhs: &[f32],
+    rhs_strides: (usize, usize),
+    par: Parallelism,
+) {
+    debug_assert!(dst.len() >= m * n);
+    if m == 0 || n == 0 {
+        return;
+    }
+    if k == 0 {
+        if !accumulate {
+            dst[..m * n].fill(0.0);
+        }
+        return;
+    }
+    // Safety: the slices cover every element addressed by the strides (checked by
+    // the debug assertions), and `dst` does not alias the inputs (distinct borrows).
+    debug_assert!(lhs.len() > (m - 1) * lhs_strides.0 + (k - 1) * lhs_strides.1);
+    debug_assert!(rhs.len() > (k - 1) * rhs_strides.0 + (n - 1) * rhs_strides.1);
+    unsafe {
+        gemm::gemm(
+            m,
+            n,
+            k,
+            dst.as_mut_ptr(),
+            1,
+            n as isize,
+            accumulate,
+            lhs.as_ptr(),
+            lhs_strides.1 as isize,
+            lhs_strides.0 as isize,
+            rhs.as_ptr(),
+            rhs_strides.1 as isize,
+            rhs_strides.0 as isize,
+            1.0,
+            1.0,
+            false,
+            false,
+            false,
+            par,
+        )
+    }
+}
+
+/// Parallelism inside one gemm: all threads when there are fewer samples than threads.
+fn inner_parallelism(batch: usize) -> Parallelism {
+    let threads = rayon::current_num_threads();
+    if batch < threads { Parallelism::Rayon(threads) } else { Parallelism::None }
+}
+
+fn forward(g: &Geometry, x: &[f32], w: &[f32], bias: &[f32]) -> Vec<f32> {
+    let (k, p, co) = (g.k(), g.p(), g.co);
+    let mut out = vec![0f32; g.b * g.out_len()];
+    let par = inner_parallelism(g.b);
+    let pointwise = g.is_pointwise();
+    out.par_chunks_mut(g.out_len().max(1)).zip(x.par_chunks(g.in_len().max(1))).for_each_init(
+        || if pointwise { Vec::new() } else { vec![0f32; p * k] },
+        |cols, (y, xb)| {
+            for row in y.chunks_exact_mut(co) {
+                row.copy_from_slice(bias);
+            }
+            let lhs: &[f32] = if pointwise {
+                xb
+            } else {
+                im2col(g, xb, cols);
+                cols
+            };
+            matmul(p, co, k, y, true, lhs, (k, 1), w, (co, 1), par);
+            if g.spec.relu {
+                for v in y.iter_mut() {
+                    *v = v.max(0.0);
+                }
+            }
+        },
+    );
+    out
+}
+
+/// Gradients of the convolution: (dx if asked, dw, db).
+fn backward(
+    g: &Geometry,
+    x: &[f32],
+    w: &[f32],
+    y: &[f32],
+    dy: &[f32],
+    need_dx: bool,
+) -> (Option<Vec<f32>>, Vec<f32>, Vec<f32>) {
+    let (k, p, co) = (g.k(), g.p(), g.co);
+    let par = inner_parallelism(g.b);
+    let pointwise = g.is_pointwise();
+    let mut dx = if need_dx { vec![0f32; g.b * g.in_len()] } else { Vec::new() };
+    let in_len = g.in_len().max(1);
+    let out_len = g.out_len().max(1);
+
+    struct Scratch {
+        dw: Vec<f32>,
+        db: Vec<f32>,
+        cols: Vec<f32>,
+        dcols: Vec<f32>,
+        gy: Vec<f32>,
+    }
+    let new_scratch = || Scratch {
+        dw: vec![0f32; k * co],
+        db: vec![0f32; co],
+        cols: if pointwise { Vec::new() } else { vec![0f32; p * k] },
+        dcols: if need_dx && !pointwise { vec![0f32; p * k] } else { Vec::new() },
+        gy: vec![0f32; g.out_len()],
+    };
+    let per_sample = |mut s: Scratch, xb: &[f32], yb: &[f32], dyb: &[f32], dxb: Option<&mut [f32]>| {
+        // Gradient at the pre-activation: the ReLU mask comes from the saved output.
+        for ((gv, &yv), &dv) in s.gy.iter_mut().zip(yb).zip(dyb) {
+            *gv = if g.spec.relu && yv <= 0.0 { 0.0 } else { dv };
+        }
+        for row in s.gy.chunks_exact(co) {
+            for (d, v) in s.db.iter_mut().zip(row) {
+                *d += v;
+            }
+        }
+        let lhs: &[f32] = if pointwise {
+            xb
+        } else {
+            im2col(g, xb, &mut s.cols);
+            &s.cols
+        };
+        // dW (k×co) += colsᵀ (k×p) · gy (p×co)
+        matmul(k, co, p, &mut s.dw, true, lhs, (1, k), &s.gy, (co, 1), par);
+        if let Some(dxb) = dxb {
+            // dcols (p×k) = gy (p×co) · wᵀ (co×k)
+            if pointwise {
+                matmul(p, k, co, dxb, false, &s.gy, (co, 1), w, (1, co), par);
+            } else {
+                matmul(p, k, co, &mut s.dcols, false, &s.gy, (co, 1), w, (1, co), par);
+                col2im_add(g, &s.dcols, dxb);
+            }
+        }
+        s
+    };
+    let merge = |mut a: Scratch, b: Scratch| {
+        for (u, v) in a.dw.iter_mut().zip(&b.dw) {
+            *u += v;
+        }
+        for (u, v) in a.db.iter_mut().zip(&b.db) {
+            *u += v;
+        }
+        a
+    };
+    // One accumulator per worker, not per sample.
+    let min_len = g.b.div_ceil(rayon::current_num_threads()).max(1);
+    let total = if need_dx {
+        dx.par_chunks_mut(in_len)
+            .zip(x.par_chunks(in_len))
+            .zip(y.par_chunks(out_len).zip(dy.par_chunks(out_len)))
+            .with_min_len(min_len)
+            .fold(new_scratch, |s, ((dxb, xb), (yb, dyb))| per_sample(s, xb, yb, dyb, Some(dxb)))
+            .reduce(new_scratch, merge)
+    } else {
+        x.par_chunks(in_len)
+            .zip(y.par_chunks(out_len).zip(dy.par_chunks(out_len)))
+            .with_min_len(min_len)
+            .fold(new_scratch, |s, (xb, (yb, dyb))| per_sample(s, xb, yb, dyb, None))
+            .reduce(new_scratch, merge)
+    };
+    (need_dx.then_some(dx), total.dw, total.db)
+}
+
+fn cpu_f32<'a>(s: &'a CpuStorage, l: &Layout, what: &str) -> candle_core::Result<&'a [f32]> {
+    let data = s.as_slice::<f32>()?;
+    match l.contiguous_offsets() {
+        Some((a, b)) => Ok(&data[a..b]),
+        None => candle_core::bail!("conv: {what} must be contiguous"),
+    }
+}
+
+/// Run `f` on the contiguous CPU f32 data of `t`.
+fn with_cpu_f32<R>(t: &Tensor, what: &str, f: impl FnOnce(&[f32]) -> candle_core::Result<R>) -> candle_core::Result<R> {
+    let (storage, layout) = t.storage_and_layout();
+    match &*storage {
+        Storage::Cpu(s) => f(cpu_f32(s, layout, what)?),
+        _ => candle_core::bail!("conv: the custom kernel runs on the CPU only ({what} is on another device)"),
+    }
+}
+
+/// The custom op. Use [`conv`] rather than this directly.
+struct ConvOp(ConvSpec);
+
+impl CustomOp3 for ConvOp {
+    fn name(&self) -> &'static str {
+        "pednav-conv-cl"
+    }
+
+    fn cpu_fwd(
+        &self,
+        s1: &CpuStorage,
+        l1: &Layout,
+        s2: &CpuStorage,
+        l2: &Layout,
+        s3: &CpuStorage,
+        l3: &Layout,
+    ) -> candle_core::Result<(CpuStorage, Shape)> {
+        let g = Geometry::new(self.0, l1.dims(), l2.dims())?;
+        if l3.dims() != [g.co] {
+            candle_core::bail!("conv: bias must be ({}), got {:?}", g.co, l3.dims());
+        }
+        let y = forward(&g, cpu_f32(s1, l1, "input")?, cpu_f32(s2, l2, "weight")?, cpu_f32(s3, l3, "bias")?);
+        Ok((CpuStorage::F32(y), Shape::from_dims(&[g.b, g.to, g.ho, g.wo, g.co])))
+    }
+
+    fn bwd(
+        &self,
+        x: &Tensor,
+        w: &Tensor,
+        _b: &Tensor,
+        y: &Tensor,
+        dy: &Tensor,
+    ) -> candle_core::Result<(Option<Tensor>, Option<Tensor>, Option<Tensor>)> {
+        let g = Geometry::new(self.0, x.dims(), w.dims())?;
+        let dy = dy.contiguous()?;
+        let need_dx = x.track_op();
+        let (dx, dw, db) = with_cpu_f32(x, "input", |xs| {
+            with_cpu_f32(w, "weight", |ws| {
+                with_cpu_f32(y, "output", |ys| {
+                    with_cpu_f32(&dy, "output gradient", |dys| Ok(backward(&g, xs, ws, ys, dys, need_dx)))
+                })
+            })
+        })?;
+        let dev = x.device();
+        let dx = dx.map(|v| Tensor::from_vec(v, x.shape(), dev)).transpose()?;
+        Ok((dx, Some(Tensor::from_vec(dw, w.shape(), dev)?), Some(Tensor::from_vec(db, g.co, dev)?)))
+    }
+}
+
+/// Channel-last convolution `y = act(conv(x, w) + b)` (see the module docs for layouts).
+///
+/// On the CPU this runs the fused im2col + gemm kernel; on other devices (the `cuda`
+/// feature) it runs [`conv_reference`], built from candle's own `conv2d`.
+pub fn conv(x: &Tensor, w: &Tensor, b: &Tensor, spec: ConvSpec) -> candle_core::Result<Tensor> {
+    if x.device().is_cpu() {
+        x.contiguous()?.apply_op3(&w.contiguous()?, &b.contiguous()?, ConvOp(spec))
+    } else {
+        conv_reference(x, w, b, spec)
+    }
+}
+
+/// The same convolution from candle's stock ops: one `conv2d` per temporal tap over
+/// all frames, shifted by the dilation and summed. Slower on the CPU (candle's
+/// `conv2d` backward), but runs on every candle device; the tests use it as the
+/// independent reference for the custom kernel.
+pub fn conv_reference(x: &Tensor, w: &Tensor, b: &Tensor, spec: ConvSpec) -> candle_core::Result<Tensor> {
+    let g = Geometry::new(spec, x.dims(), w.dims())?;
+    let [kt, kh, kw] = spec.kernel;
+    if spec.stride[0] != spec.stride[1] || spec.padding[0] != spec.padding[1] {
+        candle_core::bail!("conv_reference: candle's conv2d needs equal strides and paddings per axis");
+    }
+    // (B, T, H, W, C) → (B·T, C, H, W)
+    let frames = x.reshape((g.b * g.t, g.h, g.w, g.ci))?.permute((0, 3, 1, 2))?.contiguous()?;
+    // (kt·kh·kw·C, C_out) → (kt, C_out, C, kh, kw)
+    let kernels = w.reshape((kt, kh, kw, g.ci, g.co))?.permute((0, 4, 3, 1, 2))?.contiguous()?;
+    let mut sum: Option<Tensor> = None;
+    for dt in 0..kt {
+        let k = kernels.get(dt)?;
+        let y = frames.conv2d(&k, spec.padding[0], spec.stride[0], 1, 1)?; // (B·T, C_out, Ho, Wo)
+        let y = y.reshape((g.b, g.t, g.co, g.ho, g.wo))?.narrow(1, dt * spec.dilation_t, g.to)?;
+        sum = Some(match sum {
+            None => y,
+            Some(s) => (s + y)?,
+        });
+    }
+    let sum = sum.expect("kernel has at least one tap");
+    let y = sum.broadcast_add(&b.reshape((1, 1, g.co, 1, 1))?)?;
+    let y = if spec.relu { y.relu()? } else { y };
+    y.permute((0, 1, 3, 4, 2))?.contiguous()
+}

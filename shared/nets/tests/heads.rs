@@ -1,0 +1,339 @@
+//! Heads, networks, streaming cache and optimiser against independent values.
+
+use candle_core::{D, Device, IndexOp, Tensor, Var};
+use pednav_nets::heads::standard_normal;
+use pednav_nets::{
+    AdamW, AdamWConfig, CholeskyGaussian, DsacNets, EncoderKind, NetsConfig, Obs, ParamStore, PolicyStream, StepOutcome,
+};
+use proptest::prelude::*;
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+
+fn random(rng: &mut ChaCha8Rng, shape: &[usize], scale: f32) -> Tensor {
+    let n: usize = shape.iter().product();
+    let data: Vec<f32> = (0..n).map(|_| rng.random_range(-scale..scale)).collect();
+    Tensor::from_vec(data, shape, &Device::Cpu).unwrap()
+}
+
+fn rows(t: &Tensor) -> Vec<Vec<f32>> {
+    t.to_vec2().unwrap()
+}
+
+/// log N(u; μ, Σ) in f64 from Σ = LLᵀ, its determinant and adjugate inverse.
+fn mvn_log_density(u: [f64; 3], mu: [f64; 3], l: [[f64; 3]; 3]) -> f64 {
+    let mut s = [[0.0; 3]; 3];
+    for i in 0..3 {
+        for j in 0..3 {
+            s[i][j] = (0..3).map(|k| l[i][k] * l[j][k]).sum();
+        }
+    }
+    let det = s[0][0] * (s[1][1] * s[2][2] - s[1][2] * s[2][1]) - s[0][1] * (s[1][0] * s[2][2] - s[1][2] * s[2][0])
+        + s[0][2] * (s[1][0] * s[2][1] - s[1][1] * s[2][0]);
+    let cof = |r: usize, c: usize| {
+        let (r0, r1) = ((r + 1) % 3, (r + 2) % 3);
+        let (c0, c1) = ((c + 1) % 3, (c + 2) % 3);
+        s[r0][c0] * s[r1][c1] - s[r0][c1] * s[r1][c0]
+    };
+    let d: Vec<f64> = (0..3).map(|i| u[i] - mu[i]).collect();
+    let mut quad = 0.0;
+    for i in 0..3 {
+        for j in 0..3 {
+            quad += d[i] * cof(j, i) / det * d[j];
+        }
+    }
+    -0.5 * quad - 0.5 * det.ln() - 1.5 * (2.0 * std::f64::consts::PI).ln()
+}
+
+fn gaussian(rng: &mut ChaCha8Rng, b: usize) -> CholeskyGaussian {
+    CholeskyGaussian::from_raw(random(rng, &[b, 3], 1.0), &random(rng, &[b, 6], 1.5)).unwrap()
+}
+
+#[test]
+fn cholesky_log_density_matches_the_closed_form() {
+    let mut rng = ChaCha8Rng::seed_from_u64(1);
+    let g = gaussian(&mut rng, 16);
+    let u = random(&mut rng, &[16, 3], 2.0);
+    let ours: Vec<f32> = g.log_density(&u).unwrap().to_vec1().unwrap();
+    let (mu, us) = (rows(&g.mean), rows(&u));
+    let ls: Vec<Vec<Vec<f32>>> = g.scale_tril.to_vec3().unwrap();
+    for i in 0..16 {
+        let l = [0, 1, 2].map(|r| [0, 1, 2].map(|c| ls[i][r][c] as f64));
+        assert_eq!([l[0][1], l[0][2], l[1][2]], [0.0; 3], "factor is lower triangular");
+        assert!(l[0][0] > 0.0 && l[1][1] > 0.0 && l[2][2] > 0.0);
+        let expect = mvn_log_density(
+            us[i].iter().map(|&v| v as f64).collect::<Vec<_>>().try_into().unwrap(),
+            [0, 1, 2].map(|k| mu[i][k] as f64),
+            l,
+        );
+        assert!((ours[i] as f64 - expect).abs() < 1e-4 * (1.0 + expect.abs()), "row {i}: {} vs {expect}", ours[i]);
+    }
+}
+
+#[test]
+fn squashed_sample_log_prob_includes_the_tanh_jacobian() {
+    let mut rng = ChaCha8Rng::seed_from_u64(2);
+    let g = gaussian(&mut rng, 8);
+    let eps = standard_normal(&mut rng, 8, &Device::Cpu).unwrap();
+    let s = g.sample(&eps).unwrap();
+    let u = g.pre_squash(&eps).unwrap();
+    let lp: Vec<f32> = s.log_prob.to_vec1().unwrap();
+    let dens: Vec<f32> = g.log_density(&u).unwrap().to_vec1().unwrap();
+    let (us, acts) = (rows(&u), rows(&s.action));
+    for i in 0..8 {
+        let jac: f64 = us[i].iter().map(|&v| (1.0 - (v as f64).tanh().powi(2)).ln()).sum();
+        assert!((lp[i] as f64 - (dens[i] as f64 - jac)).abs() < 1e-3, "row {i}");
+        for k in 0..3 {
+            assert!((acts[i][k] as f64 - (us[i][k] as f64).tanh()).abs() < 1e-6);
+        }
+    }
+    let mode = rows(&g.mode().unwrap());
+    assert!((mode[0][0] - rows(&g.mean)[0][0].tanh()).abs() < 1e-6);
+}
+
+fn tiny(encoder: EncoderKind, shared: bool) -> NetsConfig {
+    NetsConfig {
+        encoder,
+        image_size: 21,
+        history: 4,
+        state_dim: 5,
+        hidden: 16,
+        quantiles: 8,
+        quantile_grid: 6,
+        shared_encoder: shared,
+        ..Default::default()
+    }
+}
+
+fn pixel_obs(rng: &mut ChaCha8Rng, cfg: &NetsConfig, b: usize) -> Obs {
+    let s = cfg.image_size;
+    Obs::Pixels {
+        frames: random(rng, &[b, cfg.history, s, s], 1.0).abs().unwrap(),
+        actions: random(rng, &[b, cfg.history - 1, 3], 1.0),
+        rewards: random(rng, &[b, cfg.history - 1], 1.0),
+    }
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig::with_cases(24))]
+    #[test]
+    fn quantiles_never_decrease_in_tau(seed in 0u64..1000, b in 1usize..5) {
+        let cfg = tiny(EncoderKind::Mlp, false);
+        let nets = DsacNets::new(&cfg, &Device::Cpu, seed).unwrap();
+        let mut rng = ChaCha8Rng::seed_from_u64(seed);
+        let obs = Obs::State(random(&mut rng, &[b, 5], 3.0));
+        let f = nets.online_features(&obs).unwrap();
+        let a = random(&mut rng, &[b, 3], 1.0);
+        let grid = nets.quantile.grid(&f.quantile, &a).unwrap();
+        let mut taus: Vec<f32> = (0..b * 50).map(|_| rng.random_range(0.0..1.0)).collect();
+        for row in taus.chunks_mut(50) { row.sort_by(|x, y| x.partial_cmp(y).unwrap()); }
+        let q = rows(&grid.at(&Tensor::from_vec(taus, (b, 50), &Device::Cpu).unwrap()).unwrap());
+        for row in q { for w in row.windows(2) { prop_assert!(w[1] >= w[0] - 1e-6, "{} > {}", w[0], w[1]); } }
+        let fr = nets.fraction.fractions(&f.fraction, &a).unwrap();
+        for row in rows(&fr.taus) {
+            prop_assert_eq!(row[0], 0.0);
+            prop_assert_eq!(*row.last().unwrap(), 1.0);
+            for w in row.windows(2) { prop_assert!(w[1] > w[0]); }
+        }
+    }
+}
+
+#[test]
+fn quantile_interpolation_hits_the_grid_and_midpoints() {
+    let values = Tensor::new(&[[0f32, 1.0, 3.0, 6.0]], &Device::Cpu).unwrap();
+    let grid = pednav_nets::QuantileGrid { values, intervals: 3 };
+    let taus = Tensor::new(&[[0f32, 1.0 / 6.0, 1.0 / 3.0, 0.5, 1.0]], &Device::Cpu).unwrap();
+    let q = rows(&grid.at(&taus).unwrap())[0].clone();
+    for (got, want) in q.iter().zip([0.0, 0.5, 1.0, 2.0, 6.0]) {
+        assert!((got - want).abs() < 1e-5, "{q:?}");
+    }
+}
+
+#[test]
+fn networks_are_reproducible_from_the_seed_and_the_target_starts_equal() {
+    let cfg = tiny(EncoderKind::Tcn, false);
+    let a = DsacNets::new(&cfg, &Device::Cpu, 5).unwrap();
+    let b = DsacNets::new(&cfg, &Device::Cpu, 5).unwrap();
+    let c = DsacNets::new(&cfg, &Device::Cpu, 6).unwrap();
+    let first = |n: &DsacNets| n.policy.store.vars()[0].1.flatten_all().unwrap().to_vec1::<f32>().unwrap();
+    assert_eq!(first(&a), first(&b));
+    assert_ne!(first(&a), first(&c));
+    for ((_, q), (_, t)) in a.quantile.store.vars().iter().zip(a.target.store.vars()) {
+        assert_eq!(
+            q.flatten_all().unwrap().to_vec1::<f32>().unwrap(),
+            t.flatten_all().unwrap().to_vec1::<f32>().unwrap()
+        );
+    }
+}
+
+#[test]
+fn every_encoder_kind_runs_forward_and_backward() {
+    let mut rng = ChaCha8Rng::seed_from_u64(3);
+    for (kind, shared) in [
+        (EncoderKind::Tcn, false),
+        (EncoderKind::Tcn, true),
+        (EncoderKind::FrameStack, false),
+        (EncoderKind::Mlp, false),
+    ] {
+        let cfg = tiny(kind, shared);
+        let nets = DsacNets::new(&cfg, &Device::Cpu, 1).unwrap();
+        let obs = if kind == EncoderKind::Mlp {
+            Obs::State(random(&mut rng, &[3, 5], 1.0))
+        } else {
+            pixel_obs(&mut rng, &cfg, 3)
+        };
+        let f = nets.online_features(&obs).unwrap();
+        let a = random(&mut rng, &[3, 3], 1.0);
+        let q = nets.quantile.grid(&f.quantile, &a).unwrap().values.sum_all().unwrap();
+        let grads = q.backward().unwrap();
+        let enc_grad = nets
+            .quantile
+            .store
+            .vars()
+            .iter()
+            .filter(|(n, _)| n.starts_with("enc."))
+            .filter(|(_, v)| grads.get(v).is_some())
+            .count();
+        assert!(enc_grad > 0, "{kind:?}: the critic loss must reach its encoder");
+        if shared {
+            // Policy features are detached: the policy loss does not reach the shared encoder.
+            let p = nets.policy.head(&f.policy).unwrap().mean.sum_all().unwrap().backward().unwrap();
+            assert!(nets.quantile.store.vars().iter().all(|(_, v)| p.get(v).is_none()));
+        }
+    }
+}
+
+/// Build the expected window at step t of an episode independently: frames
+/// f_{t−N+1..t} padded with f_0, actions/rewards a_{t−N+1..t−1} padded with zeros.
+fn expected_window(frames: &[Vec<u8>], actions: &[[f32; 3]], rewards: &[f32], n: usize, s: usize) -> Obs {
+    let t = frames.len() - 1;
+    let mut fr = Vec::new();
+    let mut ac = Vec::new();
+    let mut rw = Vec::new();
+    for k in 0..n {
+        let idx = (t + k + 1).saturating_sub(n);
+        fr.extend(frames[idx].iter().map(|&p| p as f32 / 255.0));
+    }
+    for k in 0..n - 1 {
+        let j = (t + k + 1) as isize - n as isize;
+        if j < 0 {
+            ac.extend([0.0; 3]);
+            rw.push(0.0);
+        } else {
+            ac.extend(actions[j as usize]);
+            rw.push(rewards[j as usize]);
+        }
+    }
+    Obs::Pixels {
+        frames: Tensor::from_vec(fr, (1, n, s, s), &Device::Cpu).unwrap(),
+        actions: Tensor::from_vec(ac, (1, n - 1, 3), &Device::Cpu).unwrap(),
+        rewards: Tensor::from_vec(rw, (1, n - 1), &Device::Cpu).unwrap(),
+    }
+}
+
+#[test]
+fn streaming_cache_equals_full_recompute_over_an_episode_with_a_reset() {
+    for (kind, history, size) in
+        [(EncoderKind::Tcn, 16, 42), (EncoderKind::Tcn, 8, 42), (EncoderKind::FrameStack, 4, 42)]
+    {
+        let cfg = NetsConfig { encoder: kind, history, image_size: size, ..Default::default() };
+        let nets = DsacNets::new(&cfg, &Device::Cpu, 9).unwrap();
+        let enc = nets.acting_encoder();
+        let mut rng = ChaCha8Rng::seed_from_u64(10);
+        let envs = 2;
+        let mut stream = PolicyStream::new(&cfg, envs, &Device::Cpu);
+        let frame = |rng: &mut ChaCha8Rng| (0..size * size).map(|_| rng.random::<u8>()).collect::<Vec<u8>>();
+        let mut eps: Vec<(Vec<Vec<u8>>, Vec<[f32; 3]>, Vec<f32>)> = vec![Default::default(); envs];
+        for step in 0..40 {
+            for e in 0..envs {
+                let f = frame(&mut rng);
+                // Env 0 resets at step 23 (mid-episode); env 1 runs one 40-step episode.
+                if step == 0 || (e == 0 && step == 23) {
+                    stream.reset(e, &f).unwrap();
+                    eps[e] = (vec![f], vec![], vec![]);
+                } else {
+                    let a = [rng.random_range(-1.0..1.0), rng.random_range(-1.0..1.0), rng.random_range(-1.0..1.0)];
+                    let r = rng.random_range(-3.0..1.0);
+                    stream.push(e, a, r, &f).unwrap();
+                    eps[e].0.push(f);
+                    eps[e].1.push(a);
+                    eps[e].2.push(r);
+                }
+            }
+            if step == 30 {
+                stream.invalidate();
+            }
+            let cached = stream.features(enc, &[0, 1]).unwrap();
+            for e in 0..envs {
+                let want = enc.encode(&expected_window(&eps[e].0, &eps[e].1, &eps[e].2, history, size)).unwrap();
+                let got = cached.i(e..e + 1).unwrap();
+                let diff = (got - &want)
+                    .unwrap()
+                    .abs()
+                    .unwrap()
+                    .max_keepdim(D::Minus1)
+                    .unwrap()
+                    .flatten_all()
+                    .unwrap()
+                    .to_vec1::<f32>()
+                    .unwrap()[0];
+                let scale = want
+                    .abs()
+                    .unwrap()
+                    .max_keepdim(D::Minus1)
+                    .unwrap()
+                    .flatten_all()
+                    .unwrap()
+                    .to_vec1::<f32>()
+                    .unwrap()[0];
+                assert!(
+                    diff <= 1e-5 * (1.0 + scale),
+                    "{kind:?} N_h {history}: step {step} env {e}: max |Δ| {diff} (scale {scale})"
+                );
+            }
+        }
+    }
+}
+
+#[test]
+fn adamw_first_step_is_lr_times_sign_and_nonfinite_gradients_change_nothing() {
+    let mut store = ParamStore::new("p", &Device::Cpu);
+    let v = store.insert("x", Tensor::new(&[1f32, -2.0, 3.0], &Device::Cpu).unwrap()).unwrap();
+    let mut opt = AdamW::new(&store, AdamWConfig::with_lr(0.1)).unwrap();
+    // loss = Σ c·x with c = (2, −0.5, 0): first bias-corrected step is −lr·g/(|g| + ε).
+    let c = Tensor::new(&[2f32, -0.5, 0.0], &Device::Cpu).unwrap();
+    let grads = (v.as_tensor() * &c).unwrap().sum_all().unwrap().backward().unwrap();
+    assert!(
+        matches!(opt.step(&grads).unwrap(), StepOutcome::Applied { grad_norm } if (grad_norm - 4.25f64.sqrt()).abs() < 1e-6)
+    );
+    let x: Vec<f32> = v.to_vec1().unwrap();
+    assert!((x[0] - 0.9).abs() < 1e-6 && (x[1] + 1.9).abs() < 1e-6 && (x[2] - 3.0).abs() < 1e-6, "{x:?}");
+    let bad = (v.as_tensor() * Tensor::new(&[f32::NAN, 1.0, 1.0], &Device::Cpu).unwrap())
+        .unwrap()
+        .sum_all()
+        .unwrap()
+        .backward()
+        .unwrap();
+    assert_eq!(opt.step(&bad).unwrap(), StepOutcome::SkippedNonFinite);
+    assert_eq!(v.to_vec1::<f32>().unwrap(), x);
+    assert_eq!(opt.steps(), 1);
+}
+
+#[test]
+fn gradient_clipping_scales_the_global_norm() {
+    let mut store = ParamStore::new("p", &Device::Cpu);
+    let v: Var = store.insert("x", Tensor::new(&[0f32, 0.0], &Device::Cpu).unwrap()).unwrap();
+    let cfg = AdamWConfig { max_grad_norm: Some(1.0), beta1: 0.0, beta2: 0.0, eps: 0.0, ..AdamWConfig::with_lr(1.0) };
+    let mut opt = AdamW::new(&store, cfg).unwrap();
+    // With β₁ = β₂ = 0 and ε = 0 the step is g/|g| elementwise, so clipping must not
+    // change it; the reported norm is the unclipped one.
+    let grads = (v.as_tensor() * Tensor::new(&[30f32, 40.0], &Device::Cpu).unwrap())
+        .unwrap()
+        .sum_all()
+        .unwrap()
+        .backward()
+        .unwrap();
+    assert_eq!(opt.step(&grads).unwrap(), StepOutcome::Applied { grad_norm: 50.0 });
+    assert_eq!(v.to_vec1::<f32>().unwrap(), vec![-1.0, -1.0]);
+    let clipped = grads.get(&v).unwrap();
+    assert_eq!(clipped.to_vec1::<f32>().unwrap(), vec![30.0, 40.0], "the caller's gradients are not modified");
+}
