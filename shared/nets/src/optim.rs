@@ -134,8 +134,21 @@ impl AdamW {
         out
     }
 
+    /// Check that `tensors` holds a moment of the right shape for every parameter.
+    pub fn check_state(&self, tensors: &std::collections::HashMap<String, Tensor>) -> Result<()> {
+        self.prepare(tensors).map(|_| ())
+    }
+
     /// Restore moments and step count; checks every tensor before changing anything.
     pub fn load_state(&mut self, steps: u64, tensors: &std::collections::HashMap<String, Tensor>) -> Result<()> {
+        let (m, v) = self.prepare(tensors)?;
+        self.m = m;
+        self.v = v;
+        self.steps = steps;
+        Ok(())
+    }
+
+    fn prepare(&self, tensors: &std::collections::HashMap<String, Tensor>) -> Result<(Vec<Tensor>, Vec<Tensor>)> {
         let mut m = Vec::with_capacity(self.params.len());
         let mut v = Vec::with_capacity(self.params.len());
         for (name, p) in &self.params {
@@ -154,9 +167,6 @@ impl AdamW {
                 out.push(t.to_device(p.device())?);
             }
         }
-        self.m = m;
-        self.v = v;
-        self.steps = steps;
-        Ok(())
+        Ok((m, v))
     }
 }

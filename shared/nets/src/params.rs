@@ -67,9 +67,8 @@ impl ParamStore {
         self.vars.iter().map(|(n, v)| (n.clone(), v.as_tensor().detach())).collect()
     }
 
-    /// Replace every value from `values`. Checks names and shapes of all tensors
-    /// first, so an incompatible map changes nothing.
-    pub fn load(&self, values: &HashMap<String, Tensor>) -> Result<()> {
+    /// Check that `values` has exactly this store's names and shapes.
+    pub fn check(&self, values: &HashMap<String, Tensor>) -> Result<()> {
         let incompatible = |message: String| NetError::Incompatible { network: self.name.clone(), message };
         for (name, var) in &self.vars {
             let t = values.get(name).ok_or_else(|| incompatible(format!("tensor `{name}` is missing")))?;
@@ -84,6 +83,13 @@ impl ParamStore {
         if let Some(extra) = values.keys().find(|k| !self.vars.iter().any(|(n, _)| n == *k)) {
             return Err(incompatible(format!("unexpected tensor `{extra}`")));
         }
+        Ok(())
+    }
+
+    /// Replace every value from `values`. Checks names and shapes of all tensors
+    /// first, so an incompatible map changes nothing.
+    pub fn load(&self, values: &HashMap<String, Tensor>) -> Result<()> {
+        self.check(values)?;
         for (name, var) in &self.vars {
             var.set(&values[name].to_device(&self.device)?.to_dtype(var.dtype())?)?;
         }

@@ -1,0 +1,111 @@
+//! DSAC settings (Table IV) — a section of every run's config file.
+
+use serde::{Deserialize, Serialize};
+
+use crate::error::{Result, config_error};
+
+/// Distributional Soft Actor-Critic hyper-parameters. Defaults are the paper's Table IV.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct DsacConfig {
+    /// Discount factor γ.
+    pub gamma: f64,
+    /// Target entropy for the automatic temperature (−3 = −|A|).
+    pub target_entropy: f64,
+    /// Initial temperature α₀.
+    pub initial_alpha: f64,
+    /// Learning rate of the temperature (optimised as log α).
+    pub lr_alpha: f64,
+    /// Learning rate of the policy network.
+    pub lr_policy: f64,
+    /// Learning rate of the quantile network.
+    pub lr_quantile: f64,
+    /// Learning rate of the fraction-proposal network (FQF's value 2.5e-9).
+    pub lr_fraction: f64,
+    /// Polyak coefficient τ of the target quantile network.
+    pub soft_update: f64,
+    /// κ of the quantile Huber loss.
+    pub huber_kappa: f64,
+    /// Weight of the fraction-proposal entropy bonus (FQF's default 0).
+    pub fraction_entropy: f64,
+    /// Clip each network's global gradient norm to this value (`null`/absent: no clipping,
+    /// as in the paper).
+    pub max_grad_norm: Option<f64>,
+    /// Samples per update.
+    pub batch_size: usize,
+    /// Env steps stored before the first update.
+    pub warmup: u64,
+    /// Env steps per update (the replay ratio).
+    pub train_interval: u64,
+    /// Updates the learner may fall behind before actors are held back.
+    pub rate_slack: u64,
+}
+
+impl Default for DsacConfig {
+    fn default() -> Self {
+        DsacConfig {
+            gamma: 0.99,
+            target_entropy: -3.0,
+            initial_alpha: 0.25,
+            lr_alpha: 1e-5,
+            lr_policy: 1e-4,
+            lr_quantile: 5e-5,
+            lr_fraction: 2.5e-9,
+            soft_update: 2.5e-3,
+            huber_kappa: 1.0,
+            fraction_entropy: 0.0,
+            max_grad_norm: None,
+            batch_size: 64,
+            warmup: 50_000,
+            train_interval: 8,
+            rate_slack: 4,
+        }
+    }
+}
+
+impl DsacConfig {
+    /// Reject impossible values, naming the field.
+    pub fn validate(&self) -> Result<()> {
+        if !(0.0..1.0).contains(&self.gamma) {
+            return Err(config_error("gamma", self.gamma, "must be in [0, 1)"));
+        }
+        if !(self.initial_alpha > 0.0) {
+            return Err(config_error("initial_alpha", self.initial_alpha, "must be positive"));
+        }
+        for (field, v) in [
+            ("lr_alpha", self.lr_alpha),
+            ("lr_policy", self.lr_policy),
+            ("lr_quantile", self.lr_quantile),
+            ("lr_fraction", self.lr_fraction),
+        ] {
+            if !(v >= 0.0 && v.is_finite()) {
+                return Err(config_error(field, v, "must be a finite non-negative learning rate"));
+            }
+        }
+        if !(self.soft_update > 0.0 && self.soft_update <= 1.0) {
+            return Err(config_error("soft_update", self.soft_update, "must be in (0, 1]"));
+        }
+        if !(self.huber_kappa > 0.0) {
+            return Err(config_error("huber_kappa", self.huber_kappa, "must be positive"));
+        }
+        if let Some(m) = self.max_grad_norm
+            && !(m > 0.0)
+        {
+            return Err(config_error("max_grad_norm", m, "must be positive (omit it to disable clipping)"));
+        }
+        if self.batch_size < 2 {
+            return Err(config_error("batch_size", self.batch_size, "must be at least 2"));
+        }
+        if self.train_interval == 0 {
+            return Err(config_error("train_interval", self.train_interval, "must be positive"));
+        }
+        if self.warmup < self.batch_size as u64 {
+            return Err(config_error(
+                "warmup",
+                self.warmup,
+                format!("must be at least batch_size ({})", self.batch_size),
+            ));
+        }
+        Ok(())
+    }
+}

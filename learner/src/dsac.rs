@@ -1,0 +1,278 @@
+//! The modified DSAC update (paper §III-D, Table IV): FQF fractions, NDQFN
+//! quantiles, one quantile net with a Polyak target and no target actor,
+//! automatic temperature, IS ratios from the dual replay on every loss.
+//!
+//! One update, with η the IS ratios of the batch and α = exp(log α) held fixed:
+//! - target: a′ ~ π(·|s′), τ̂′ from the fraction net at (s′, a′),
+//!   yⱼ = r + γ(1 − d)(Z_target(s′, a′, τ̂′ⱼ) − α log π(a′|s′)) — the goal (d = 1)
+//!   does not bootstrap; truncation at T_max is not terminal and does;
+//! - critic: quantile Huber loss between Z(s, a, τ̂ᵢ) and yⱼ, weighted by the target
+//!   fraction widths (as DSAC), per-sample, then Σ η·ℓ / B;
+//! - fractions: FQF's W₁ gradient ∂W₁/∂τᵢ = 2Z(τᵢ) − Z(τ̂ᵢ₋₁) − Z(τ̂ᵢ) (detached) times τᵢ;
+//! - policy: η·(α log π(ã|s) − Σᵢ (τᵢ₊₁ − τᵢ) Z(s, ã, τ̂ᵢ)) with ã reparameterised;
+//! - temperature: −η·log α·(log π(ã|s) + H̄).
+//!
+//! Invariant: every loss is computed with the pre-update weights and all gradients
+//! are taken before any optimiser steps; if any loss or gradient is non-finite the
+//! whole update is skipped (counted and logged) and the weights stay as they were.
+
+use candle_core::{D, DType, Device, Tensor};
+use pednav_nets::heads::standard_normal;
+use pednav_nets::{AdamW, AdamWConfig, DsacNets, NetsConfig, Obs, ParamStore, QuantileGrid, StepOutcome};
+use rand::SeedableRng;
+use rand_chacha::ChaCha8Rng;
+
+use crate::config::DsacConfig;
+use crate::error::Result;
+use crate::replay::Batch;
+
+/// Quantile Huber loss per sample (B): (1/N) Σᵢ Σⱼ wⱼ·|τ̂ᵢ − 1{δᵢⱼ < 0}|·H_κ(δᵢⱼ)/κ
+/// with δᵢⱼ = yⱼ − zᵢ; `pred` (B, N), `target` (B, N′), `taus` (B, N), `weights` (B, N′).
+pub fn quantile_huber_loss(
+    pred: &Tensor,
+    target: &Tensor,
+    taus: &Tensor,
+    weights: &Tensor,
+    kappa: f64,
+) -> Result<Tensor> {
+    let (b, n) = pred.dims2()?;
+    let m = target.dims()[1];
+    let delta = target.unsqueeze(1)?.broadcast_sub(&pred.unsqueeze(2)?)?; // (B, N, N′)
+    let abs = delta.abs()?;
+    let small = abs.clamp(0.0, kappa)?;
+    let huber = ((small.sqr()? * 0.5)? + ((&abs - &small)? * kappa)?)?;
+    let below = delta.detach().lt(0.0)?.to_dtype(DType::F32)?;
+    let asym = taus.unsqueeze(2)?.broadcast_as((b, n, m))?.sub(&below)?.abs()?;
+    let rho = (asym * huber)?.broadcast_mul(&weights.unsqueeze(1)?)?;
+    Ok((rho.sum(D::Minus1)?.mean(D::Minus1)? / kappa)?)
+}
+
+/// FQF's fraction-loss gradient ∂W₁/∂τᵢ for the N − 1 inner fractions (B, N − 1):
+/// 2·Z(τᵢ) − Z(τ̂ᵢ₋₁) − Z(τ̂ᵢ), from values at the inner fractions `z_taus` (B, N − 1)
+/// and at the midpoints `z_hats` (B, N).
+pub fn fraction_gradient(z_taus: &Tensor, z_hats: &Tensor) -> Result<Tensor> {
+    let n = z_hats.dims()[1];
+    let left = z_hats.narrow(1, 0, n - 1)?;
+    let right = z_hats.narrow(1, 1, n - 1)?;
+    Ok(((z_taus * 2.0)? - left)?.sub(&right)?)
+}
+
+/// Mean of η·x over the batch.
+fn weighted_mean(x: &Tensor, eta: &Tensor) -> Result<Tensor> {
+    Ok((x * eta)?.mean_all()?)
+}
+
+/// Diagnostics of one update.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct UpdateStats {
+    /// Critic (quantile Huber) loss.
+    pub critic_loss: f64,
+    /// Policy loss.
+    pub policy_loss: f64,
+    /// Fraction-proposal loss.
+    pub fraction_loss: f64,
+    /// Temperature loss.
+    pub alpha_loss: f64,
+    /// α used in this update.
+    pub alpha: f64,
+    /// Policy entropy estimate −E[log π].
+    pub entropy: f64,
+    /// Mean Q(s, a) of the batch (Σ widths·Z).
+    pub q_mean: f64,
+    /// Gradient norm of the quantile net (before clipping).
+    pub critic_grad_norm: f64,
+    /// Gradient norm of the policy (before clipping).
+    pub policy_grad_norm: f64,
+    /// The update was skipped (non-finite loss or gradient).
+    pub skipped: bool,
+}
+
+/// The learner's trainable state: networks, optimisers, temperature, RNG.
+pub struct Dsac {
+    /// Hyper-parameters.
+    pub cfg: DsacConfig,
+    /// The networks.
+    pub nets: DsacNets,
+    /// log α as a one-parameter store.
+    pub log_alpha: ParamStore,
+    pub(crate) opt_policy: AdamW,
+    pub(crate) opt_fraction: AdamW,
+    pub(crate) opt_quantile: AdamW,
+    pub(crate) opt_alpha: AdamW,
+    /// Noise for policy samples (seeded; saved in checkpoints).
+    pub rng: ChaCha8Rng,
+    /// Updates applied.
+    pub updates: u64,
+    /// Updates skipped by the non-finite guard.
+    pub skipped: u64,
+}
+
+impl Dsac {
+    /// Fresh networks and optimisers from `seed`.
+    pub fn new(cfg: &DsacConfig, nets_cfg: &NetsConfig, device: &Device, seed: u64) -> Result<Dsac> {
+        cfg.validate()?;
+        let nets = DsacNets::new(nets_cfg, device, seed)?;
+        let mut log_alpha = ParamStore::new("log_alpha", device);
+        log_alpha.insert("log_alpha", Tensor::new(&[cfg.initial_alpha.ln() as f32], device)?)?;
+        let opt = |store: &ParamStore, lr: f64| {
+            AdamW::new(store, AdamWConfig { max_grad_norm: cfg.max_grad_norm, ..AdamWConfig::with_lr(lr) })
+        };
+        let mut rng = ChaCha8Rng::seed_from_u64(seed);
+        rng.set_stream(100);
+        Ok(Dsac {
+            opt_policy: opt(&nets.policy.store, cfg.lr_policy)?,
+            opt_fraction: opt(&nets.fraction.store, cfg.lr_fraction)?,
+            opt_quantile: opt(&nets.quantile.store, cfg.lr_quantile)?,
+            opt_alpha: AdamW::new(&log_alpha, AdamWConfig::with_lr(cfg.lr_alpha))?,
+            cfg: cfg.clone(),
+            nets,
+            log_alpha,
+            rng,
+            updates: 0,
+            skipped: 0,
+        })
+    }
+
+    /// Current temperature α.
+    pub fn alpha(&self) -> Result<f64> {
+        let v = self.log_alpha.vars()[0].1.as_tensor().to_vec1::<f32>()?[0];
+        Ok((v as f64).exp())
+    }
+
+    /// The optimisers by name, in checkpoint order.
+    pub(crate) fn optimizers(&mut self) -> [(&'static str, &mut AdamW); 4] {
+        [
+            ("policy", &mut self.opt_policy),
+            ("fraction", &mut self.opt_fraction),
+            ("quantile", &mut self.opt_quantile),
+            ("alpha", &mut self.opt_alpha),
+        ]
+    }
+
+    /// Sample actions for a batch of observations (stochastic, or tanh(μ) when
+    /// `deterministic`), with log-probabilities.
+    pub fn act(&mut self, obs: &Obs, deterministic: bool) -> Result<(Tensor, Tensor)> {
+        let f = self.nets.policy_features(obs)?;
+        let dist = self.nets.policy.head(&f)?;
+        if deterministic {
+            let b = obs.batch();
+            return Ok((dist.mode()?.detach(), Tensor::zeros(b, DType::F32, f.device())?));
+        }
+        let eps = standard_normal(&mut self.rng, obs.batch(), f.device())?;
+        let s = dist.sample(&eps)?;
+        Ok((s.action.detach(), s.log_prob.detach()))
+    }
+
+    /// One DSAC update on `batch`.
+    pub fn update(&mut self, batch: &Batch) -> Result<UpdateStats> {
+        let c = self.cfg.clone();
+        let alpha = self.alpha()?;
+        let nets = &self.nets;
+        let dev = batch.action.device().clone();
+        let bsz = batch.action.dims()[0];
+        let eta = &batch.weight;
+
+        // TD target (no gradients).
+        let next_policy = nets.policy.head(&nets.policy_features(&batch.next_obs)?.detach())?;
+        let next = next_policy.sample(&standard_normal(&mut self.rng, bsz, &dev)?)?;
+        let (a_next, logp_next) = (next.action.detach(), next.log_prob.detach());
+        let next_fr = nets.fraction.fractions(&nets.fraction_features(&batch.next_obs)?.detach(), &a_next)?;
+        let (next_hats, next_widths) = (next_fr.hats.detach(), next_fr.widths.detach());
+        let z_next =
+            nets.target.grid(&nets.target_features(&batch.next_obs)?.detach(), &a_next)?.at(&next_hats)?.detach();
+        let soft = z_next.broadcast_sub(&(logp_next * alpha)?.unsqueeze(1)?)?;
+        let not_done = (batch.done.neg()? + 1.0)?;
+        let target = soft
+            .broadcast_mul(&(not_done * c.gamma)?.unsqueeze(1)?)?
+            .broadcast_add(&batch.reward.unsqueeze(1)?)?
+            .detach();
+
+        // Critic.
+        let feats = nets.online_features(&batch.obs)?;
+        let fr = nets.fraction.fractions(&feats.fraction, &batch.action)?;
+        let hats = fr.hats.detach();
+        let grid = nets.quantile.grid(&feats.quantile, &batch.action)?;
+        let z = grid.at(&hats)?;
+        let critic_loss = weighted_mean(&quantile_huber_loss(&z, &target, &hats, &next_widths, c.huber_kappa)?, eta)?;
+        let q_mean = (&z.detach() * fr.widths.detach())?.sum(D::Minus1)?.mean_all()?.to_scalar::<f32>()? as f64;
+
+        // Fraction proposal (quantile values detached; gradient through τ only).
+        let n = c_quantiles(&fr.taus);
+        let fixed = QuantileGrid { values: grid.values.detach(), intervals: grid.intervals };
+        let inner = fr.taus.narrow(1, 1, n - 1)?;
+        let grad_w1 = fraction_gradient(&fixed.at(&inner.detach())?, &fixed.at(&hats)?)?.detach();
+        let mut fraction_per = (grad_w1 * &inner)?.sum(D::Minus1)?;
+        if c.fraction_entropy != 0.0 {
+            fraction_per = (fraction_per - (&fr.entropy * c.fraction_entropy)?)?;
+        }
+        let fraction_loss = weighted_mean(&fraction_per, eta)?;
+
+        // Policy (critic features and fractions detached; gradient through ã).
+        let pi = nets.policy.head(&feats.policy)?.sample(&standard_normal(&mut self.rng, bsz, &dev)?)?;
+        let new_fr = nets.fraction.fractions(&feats.fraction.detach(), &pi.action.detach())?;
+        let z_new = nets.quantile.grid(&feats.quantile.detach(), &pi.action)?.at(&new_fr.hats.detach())?;
+        let q_new = (z_new * new_fr.widths.detach())?.sum(D::Minus1)?;
+        let policy_loss = weighted_mean(&((&pi.log_prob * alpha)? - q_new)?, eta)?;
+
+        // Temperature.
+        let log_alpha = self.log_alpha.vars()[0].1.as_tensor();
+        let gap = (pi.log_prob.detach() + c.target_entropy)?;
+        let alpha_loss = weighted_mean(&gap.broadcast_mul(log_alpha)?, eta)?.neg()?;
+        let entropy = -(pi.log_prob.detach().mean_all()?.to_scalar::<f32>()? as f64);
+
+        let scalar = |t: &Tensor| -> Result<f64> { Ok(t.to_scalar::<f32>()? as f64) };
+        let mut stats = UpdateStats {
+            critic_loss: scalar(&critic_loss)?,
+            policy_loss: scalar(&policy_loss)?,
+            fraction_loss: scalar(&fraction_loss)?,
+            alpha_loss: scalar(&alpha_loss)?,
+            alpha,
+            entropy,
+            q_mean,
+            ..Default::default()
+        };
+        let losses_finite =
+            [stats.critic_loss, stats.policy_loss, stats.fraction_loss, stats.alpha_loss].iter().all(|v| v.is_finite());
+        if !losses_finite {
+            return Ok(self.skip(stats, "non-finite loss"));
+        }
+        let g_critic = critic_loss.backward()?;
+        let g_fraction = fraction_loss.backward()?;
+        let g_policy = policy_loss.backward()?;
+        let g_alpha = alpha_loss.backward()?;
+        stats.critic_grad_norm = self.opt_quantile.grad_norm(&g_critic)?;
+        stats.policy_grad_norm = self.opt_policy.grad_norm(&g_policy)?;
+        let norms = [
+            stats.critic_grad_norm,
+            stats.policy_grad_norm,
+            self.opt_fraction.grad_norm(&g_fraction)?,
+            self.opt_alpha.grad_norm(&g_alpha)?,
+        ];
+        if norms.iter().any(|v| !v.is_finite()) {
+            return Ok(self.skip(stats, "non-finite gradient"));
+        }
+        for (opt, grads) in [
+            (&mut self.opt_quantile, &g_critic),
+            (&mut self.opt_fraction, &g_fraction),
+            (&mut self.opt_policy, &g_policy),
+            (&mut self.opt_alpha, &g_alpha),
+        ] {
+            let outcome = opt.step(grads)?;
+            debug_assert!(matches!(outcome, StepOutcome::Applied { .. }), "norms were checked finite");
+        }
+        self.nets.target.store.soft_update(&self.nets.quantile.store, c.soft_update)?;
+        self.updates += 1;
+        Ok(stats)
+    }
+
+    fn skip(&mut self, mut stats: UpdateStats, why: &str) -> UpdateStats {
+        self.skipped += 1;
+        tracing::warn!(update = self.updates, skipped = self.skipped, "{why}: update skipped, weights unchanged");
+        stats.skipped = true;
+        stats
+    }
+}
+
+fn c_quantiles(taus: &Tensor) -> usize {
+    taus.dims()[1] - 1
+}

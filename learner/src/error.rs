@@ -1,0 +1,45 @@
+//! The one error type of the learner library.
+
+use std::path::PathBuf;
+
+/// Everything that can go wrong in `pednav-learner`.
+#[derive(Debug, thiserror::Error)]
+pub enum LearnerError {
+    /// A network or tensor operation failed.
+    #[error(transparent)]
+    Net(#[from] pednav_nets::NetError),
+    /// A learner setting is out of range.
+    #[error("invalid learner setting `{field}` = {value}: {message}")]
+    Config {
+        /// The offending field.
+        field: &'static str,
+        /// Its value, as text.
+        value: String,
+        /// What is allowed.
+        message: String,
+    },
+    /// The replay cannot serve the request.
+    #[error("replay: {0}")]
+    Replay(String),
+    /// A checkpoint could not be written or read.
+    #[error("checkpoint {path}: {message}")]
+    Checkpoint {
+        /// The file or directory.
+        path: PathBuf,
+        /// What went wrong and how to fix it.
+        message: String,
+    },
+}
+
+impl From<candle_core::Error> for LearnerError {
+    fn from(e: candle_core::Error) -> Self {
+        LearnerError::Net(e.into())
+    }
+}
+
+/// Result alias of the library.
+pub type Result<T, E = LearnerError> = std::result::Result<T, E>;
+
+pub(crate) fn config_error(field: &'static str, value: impl ToString, message: impl Into<String>) -> LearnerError {
+    LearnerError::Config { field, value: value.to_string(), message: message.into() }
+}

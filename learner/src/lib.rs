@@ -1,0 +1,16 @@
+//! The pednav learner library: the modified DSAC update, the dual replay of the
+//! paper's Algorithm 2, the replay-ratio limiter and checkpoints.
+
+pub mod checkpoint;
+pub mod config;
+pub mod dsac;
+pub mod error;
+pub mod rate;
+pub mod replay;
+
+pub use checkpoint::{CheckpointMeta, load_checkpoint, read_meta, save_checkpoint};
+pub use config::DsacConfig;
+pub use dsac::{Dsac, UpdateStats, fraction_gradient, quantile_huber_loss};
+pub use error::{LearnerError, Result};
+pub use rate::RateLimiter;
+pub use replay::{Batch, DualReplay, Frame, FrameKind, ReplayConfig, Step, dual_split};

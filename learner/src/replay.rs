@@ -1,0 +1,549 @@
+//! The dual replay of the paper's Algorithm 2: a terminal pool and a non-terminal
+//! pool, a proportional batch split with at least one terminal sample once one
+//! exists, and importance-sampling ratios normalised by their maximum.
+//!
+//! Storage. Steps arrive one at a time, interleaved across (actor, env) streams.
+//! The non-terminal pool is a ring of *steps*: each frame is stored once, with a
+//! link to the previous step of its episode, the action that led to it and the
+//! reward received. A transition (o_t, a_t, r_t, o_{t+1}) is the step holding
+//! frame t+1; its two N_h-frame windows and their action/reward histories are
+//! rebuilt on sampling by following the links (padding with the episode's first
+//! frame and zero actions/rewards before the episode start, as the actors do).
+//! Goal-reaching (terminal) transitions are rare and must outlive the ring, so the
+//! terminal pool keeps its own copy of the N_h + 1 frames and N_h actions/rewards
+//! each one needs.
+//!
+//! Invariants: a sampled window is identical to the window the actor saw (tested
+//! against scripted episodes across episode boundaries and ring wrap-around); a
+//! transition whose window reaches an overwritten step is never sampled;
+//! `|B_N|` counts exactly the sampleable-kind steps in the ring (non-first,
+//! non-terminal).
+//!
+//! Memory: the ring holds `nonterminal_capacity` frames (84×84 u8: 7,056 B each,
+//! so 1.5e6 frames ≈ 10.6 GB; 42×42: 2.6 GB) plus 32 B per step of links,
+//! actions and rewards; a terminal entry holds (N_h + 1) frames (120 kB at 84×84,
+//! N_h 16). Both grow on demand up to their capacities.
+
+use std::collections::HashMap;
+
+use candle_core::{Device, Tensor};
+use pednav_nets::{ACTION_DIM, Obs};
+use rand::Rng;
+use rand_chacha::ChaCha8Rng;
+use serde::{Deserialize, Serialize};
+
+use crate::error::{LearnerError, Result, config_error};
+
+/// Replay settings.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct ReplayConfig {
+    /// |B_N| capacity: steps in the non-terminal ring (Table IV: 1.5e6).
+    pub nonterminal_capacity: usize,
+    /// |B_T| capacity: terminal transitions kept (Table IV: 1.5e6).
+    pub terminal_capacity: usize,
+}
+
+impl Default for ReplayConfig {
+    fn default() -> Self {
+        ReplayConfig { nonterminal_capacity: 1_500_000, terminal_capacity: 1_500_000 }
+    }
+}
+
+/// What one stored observation frame is.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum FrameKind {
+    /// Greyscale `size × size` pixels (u8).
+    Pixels {
+        /// Side length.
+        size: usize,
+    },
+    /// A state vector of `dim` floats (the MLP encoder; history must be 1).
+    State {
+        /// Length.
+        dim: usize,
+    },
+}
+
+impl FrameKind {
+    fn len(&self) -> usize {
+        match *self {
+            FrameKind::Pixels { size } => size * size,
+            FrameKind::State { dim } => dim,
+        }
+    }
+}
+
+/// A frame as handed to the replay.
+#[derive(Debug, Clone, Copy)]
+pub enum Frame<'a> {
+    /// Pixels, row-major.
+    Pixels(&'a [u8]),
+    /// A state vector.
+    State(&'a [f32]),
+}
+
+/// One step of one environment, as the learner receives it.
+#[derive(Debug, Clone, Copy)]
+pub struct Step<'a> {
+    /// Identifies the (actor, environment) pair; steps of different streams interleave.
+    pub stream: u64,
+    /// First step of an episode (its action and reward are ignored).
+    pub first: bool,
+    /// The observation after the step.
+    pub frame: Frame<'a>,
+    /// The action that led here.
+    pub action: [f32; ACTION_DIM],
+    /// The reward received for it.
+    pub reward: f32,
+    /// The goal was reached here (no bootstrapping from this frame).
+    pub terminal: bool,
+}
+
+const NONE: u64 = u64::MAX;
+
+enum Frames {
+    U8(Vec<u8>),
+    F32(Vec<f32>),
+}
+
+impl Frames {
+    fn new(kind: FrameKind) -> Frames {
+        match kind {
+            FrameKind::Pixels { .. } => Frames::U8(Vec::new()),
+            FrameKind::State { .. } => Frames::F32(Vec::new()),
+        }
+    }
+    /// Write `frame` at slot `slot` (appending when the slot is new).
+    fn put(&mut self, slot: usize, len: usize, frame: Frame<'_>) -> Result<()> {
+        match (self, frame) {
+            (Frames::U8(v), Frame::Pixels(p)) if p.len() == len => write_slot(v, slot, p),
+            (Frames::F32(v), Frame::State(s)) if s.len() == len => write_slot(v, slot, s),
+            _ => {
+                return Err(LearnerError::Replay(format!(
+                    "frame does not match the replay's frame kind (length {len})"
+                )));
+            }
+        }
+        Ok(())
+    }
+    /// Append the frame at `slot` to `out` as f32 (pixels scaled to [0, 1]).
+    fn read(&self, slot: usize, len: usize, out: &mut Vec<f32>) {
+        match self {
+            Frames::U8(v) => out.extend(v[slot * len..(slot + 1) * len].iter().map(|&p| p as f32 / 255.0)),
+            Frames::F32(v) => out.extend_from_slice(&v[slot * len..(slot + 1) * len]),
+        }
+    }
+    fn copy_to(&self, slot: usize, len: usize, dst: &mut Frames, dst_slot: usize) {
+        match (self, dst) {
+            (Frames::U8(s), Frames::U8(d)) => write_slot(d, dst_slot, &s[slot * len..(slot + 1) * len]),
+            (Frames::F32(s), Frames::F32(d)) => write_slot(d, dst_slot, &s[slot * len..(slot + 1) * len]),
+            _ => unreachable!("pools share a frame kind"),
+        }
+    }
+}
+
+fn write_slot<T: Copy>(v: &mut Vec<T>, slot: usize, data: &[T]) {
+    let len = data.len();
+    if v.len() == slot * len {
+        v.extend_from_slice(data);
+    } else {
+        v[slot * len..(slot + 1) * len].copy_from_slice(data);
+    }
+}
+
+/// The step ring of the non-terminal pool.
+struct StepRing {
+    cap: usize,
+    frames: Frames,
+    prev: Vec<u64>,
+    action: Vec<[f32; ACTION_DIM]>,
+    reward: Vec<f32>,
+    terminal: Vec<bool>,
+    /// Global index of the next step.
+    head: u64,
+    /// Steps in the ring that are non-terminal transitions (non-first, non-terminal).
+    transitions: usize,
+}
+
+impl StepRing {
+    fn slot(&self, g: u64) -> usize {
+        (g % self.cap as u64) as usize
+    }
+    fn alive(&self, g: u64) -> bool {
+        g < self.head && g + self.cap as u64 >= self.head
+    }
+    fn is_transition(&self, slot: usize) -> bool {
+        self.prev[slot] != NONE && !self.terminal[slot]
+    }
+}
+
+/// A transition's N_h + 1 steps: times t+1−N_h … t+1, as ring indices or
+/// `None` before the episode start.
+struct Sequence {
+    steps: Vec<Option<u64>>,
+}
+
+/// A sampled batch.
+#[derive(Debug, Clone)]
+pub struct Batch {
+    /// Observations o_t.
+    pub obs: Obs,
+    /// Next observations o_{t+1}.
+    pub next_obs: Obs,
+    /// Actions a_t (B, 3).
+    pub action: Tensor,
+    /// Rewards r_t (B).
+    pub reward: Tensor,
+    /// 1 where o_{t+1} is terminal (goal reached), else 0 (B).
+    pub done: Tensor,
+    /// Normalised IS ratios η (B): terminal samples first, then non-terminal.
+    pub weight: Tensor,
+    /// N_T: how many of the B samples came from the terminal pool (the first ones).
+    pub n_terminal: usize,
+}
+
+/// Algorithm 2's split and IS ratios for pool sizes (|B_T|, |B_N|) and batch size N_B:
+/// returns (N_T, η_T, η_N). With an empty terminal pool all samples are
+/// non-terminal with η = 1 (and vice versa).
+pub fn dual_split(terminal: usize, nonterminal: usize, batch: usize) -> (usize, f64, f64) {
+    if terminal == 0 {
+        return (0, 1.0, 1.0);
+    }
+    if nonterminal == 0 {
+        return (batch, 1.0, 1.0);
+    }
+    let total = (terminal + nonterminal) as f64;
+    let p_t = terminal as f64 / total;
+    // At least one terminal sample, and (the paper is silent here) at least one
+    // non-terminal sample, so η_N stays defined when terminals dominate.
+    let n_t = ((p_t * batch as f64).round() as usize).max(1).min(batch - 1);
+    let p = batch as f64 / total;
+    let eta_t = p * terminal as f64 / n_t as f64;
+    let eta_n = p * nonterminal as f64 / (batch - n_t) as f64;
+    let m = eta_t.max(eta_n);
+    (n_t, eta_t / m, eta_n / m)
+}
+
+/// Terminal and non-terminal pools.
+pub struct DualReplay {
+    kind: FrameKind,
+    frame_len: usize,
+    history: usize,
+    ring: StepRing,
+    /// Terminal pool: (N_h + 1) frames and N_h actions/rewards per entry.
+    term_frames: Frames,
+    term_actions: Vec<[f32; ACTION_DIM]>,
+    term_rewards: Vec<f32>,
+    term_cap: usize,
+    term_len: usize,
+    term_next: usize,
+    /// Last step index of each stream's current episode.
+    streams: HashMap<u64, u64>,
+    device: Device,
+}
+
+impl DualReplay {
+    /// Empty pools for frames of `kind` and observation windows of `history` frames.
+    pub fn new(cfg: &ReplayConfig, kind: FrameKind, history: usize, device: &Device) -> Result<DualReplay> {
+        if cfg.nonterminal_capacity < history + 2 {
+            return Err(config_error(
+                "nonterminal_capacity",
+                cfg.nonterminal_capacity,
+                format!("must hold at least N_h + 2 = {} steps", history + 2),
+            ));
+        }
+        if cfg.terminal_capacity == 0 {
+            return Err(config_error("terminal_capacity", cfg.terminal_capacity, "must be positive"));
+        }
+        if history == 0 || (matches!(kind, FrameKind::State { .. }) && history != 1) {
+            return Err(config_error("history", history, "must be ≥ 1 (exactly 1 for state observations)"));
+        }
+        Ok(DualReplay {
+            kind,
+            frame_len: kind.len(),
+            history,
+            ring: StepRing {
+                cap: cfg.nonterminal_capacity,
+                frames: Frames::new(kind),
+                prev: Vec::new(),
+                action: Vec::new(),
+                reward: Vec::new(),
+                terminal: Vec::new(),
+                head: 0,
+                transitions: 0,
+            },
+            term_frames: Frames::new(kind),
+            term_actions: Vec::new(),
+            term_rewards: Vec::new(),
+            term_cap: cfg.terminal_capacity,
+            term_len: 0,
+            term_next: 0,
+            streams: HashMap::new(),
+            device: device.clone(),
+        })
+    }
+
+    /// |B_T|: terminal transitions stored.
+    pub fn terminal_len(&self) -> usize {
+        self.term_len
+    }
+
+    /// |B_N|: non-terminal transitions stored.
+    pub fn nonterminal_len(&self) -> usize {
+        self.ring.transitions
+    }
+
+    /// Steps inserted since creation.
+    pub fn inserted(&self) -> u64 {
+        self.ring.head
+    }
+
+    /// Store one step. A step of a stream whose episode start was never seen (e.g.
+    /// the learner started mid-episode) is dropped until that stream's next first step;
+    /// returns whether the step was stored.
+    pub fn push(&mut self, step: &Step<'_>) -> Result<bool> {
+        let prev = if step.first {
+            NONE
+        } else {
+            match self.streams.get(&step.stream) {
+                Some(&p) if self.ring.alive(p) => p,
+                _ => return Ok(false),
+            }
+        };
+        let g = self.ring.head;
+        let slot = self.ring.slot(g);
+        let r = &mut self.ring;
+        let fresh = r.prev.len() == slot;
+        if !fresh && r.is_transition(slot) {
+            r.transitions -= 1;
+        }
+        r.frames.put(slot, self.frame_len, step.frame)?;
+        let (action, reward) = if step.first { ([0.0; ACTION_DIM], 0.0) } else { (step.action, step.reward) };
+        if fresh {
+            r.prev.push(prev);
+            r.action.push(action);
+            r.reward.push(reward);
+            r.terminal.push(step.terminal);
+        } else {
+            r.prev[slot] = prev;
+            r.action[slot] = action;
+            r.reward[slot] = reward;
+            r.terminal[slot] = step.terminal;
+        }
+        r.head += 1;
+        if r.is_transition(slot) {
+            r.transitions += 1;
+        }
+        if step.terminal {
+            self.streams.remove(&step.stream);
+            if prev != NONE {
+                self.store_terminal(g)?;
+            }
+        } else {
+            self.streams.insert(step.stream, g);
+        }
+        Ok(true)
+    }
+
+    /// The N_h + 1 steps of the transition stored at `g`, or `None` if any is overwritten.
+    fn sequence(&self, g: u64) -> Option<Sequence> {
+        let n = self.history + 1;
+        let mut steps = vec![None; n];
+        let mut cur = Some(g);
+        for i in (0..n).rev() {
+            let c = cur?;
+            if !self.ring.alive(c) {
+                return None;
+            }
+            steps[i] = Some(c);
+            let p = self.ring.prev[self.ring.slot(c)];
+            // Before the episode start the window is padding: stop walking.
+            cur = if p == NONE { None } else { Some(p) };
+            if cur.is_none() {
+                break;
+            }
+        }
+        Some(Sequence { steps })
+    }
+
+    /// First present step of a sequence (the padding frame).
+    fn first_present(seq: &Sequence) -> u64 {
+        seq.steps.iter().flatten().copied().next().expect("a sequence holds at least its own step")
+    }
+
+    fn store_terminal(&mut self, g: u64) -> Result<()> {
+        let Some(seq) = self.sequence(g) else { return Ok(()) };
+        let n = self.history;
+        let e = self.term_next;
+        let pad = Self::first_present(&seq);
+        for (i, s) in seq.steps.iter().enumerate() {
+            let src = self.ring.slot(s.unwrap_or(pad));
+            self.ring.frames.copy_to(src, self.frame_len, &mut self.term_frames, e * (n + 1) + i);
+        }
+        // Entry i of the action/reward history: the action taken after the frame at
+        // sequence position i, stored with the step at position i + 1.
+        let (mut acts, mut rews) = (Vec::with_capacity(n), Vec::with_capacity(n));
+        for i in 0..n {
+            match (seq.steps[i], seq.steps[i + 1]) {
+                (Some(_), Some(next)) => {
+                    let slot = self.ring.slot(next);
+                    acts.push(self.ring.action[slot]);
+                    rews.push(self.ring.reward[slot]);
+                }
+                _ => {
+                    acts.push([0.0; ACTION_DIM]);
+                    rews.push(0.0);
+                }
+            }
+        }
+        write_slot(&mut self.term_actions, e, &acts);
+        write_slot(&mut self.term_rewards, e, &rews);
+        self.term_next = (e + 1) % self.term_cap;
+        self.term_len = (self.term_len + 1).min(self.term_cap);
+        Ok(())
+    }
+
+    /// Draw one sampleable non-terminal transition uniformly.
+    fn draw_nonterminal(&self, rng: &mut ChaCha8Rng) -> Result<Sequence> {
+        let r = &self.ring;
+        let lo = r.head.saturating_sub(r.cap as u64);
+        for _ in 0..10_000 {
+            let g = rng.random_range(lo..r.head);
+            if !r.is_transition(r.slot(g)) {
+                continue;
+            }
+            if let Some(seq) = self.sequence(g) {
+                return Ok(seq);
+            }
+        }
+        Err(LearnerError::Replay(format!("no sampleable non-terminal transition among {} stored steps", r.head - lo)))
+    }
+
+    /// Sample a batch of `batch` transitions by Algorithm 2.
+    pub fn sample(&self, batch: usize, rng: &mut ChaCha8Rng) -> Result<Batch> {
+        if batch == 0 {
+            return Err(config_error("batch_size", batch, "must be positive"));
+        }
+        if self.term_len + self.ring.transitions == 0 {
+            return Err(LearnerError::Replay("sampling from an empty replay".into()));
+        }
+        let (n_t, eta_t, eta_n) = dual_split(self.term_len, self.ring.transitions, batch);
+        let n = self.history;
+        let fl = self.frame_len;
+        let mut b = BatchBuilder::new(batch, n, fl);
+        for _ in 0..n_t {
+            let e = rng.random_range(0..self.term_len);
+            let mut frames = Vec::with_capacity((n + 1) * fl);
+            for i in 0..=n {
+                self.term_frames.read(e * (n + 1) + i, fl, &mut frames);
+            }
+            b.add(
+                &frames,
+                &self.term_actions[e * n..(e + 1) * n],
+                &self.term_rewards[e * n..(e + 1) * n],
+                1.0,
+                eta_t as f32,
+            );
+        }
+        for _ in n_t..batch {
+            let seq = self.draw_nonterminal(rng)?;
+            let pad = Self::first_present(&seq);
+            let mut frames = Vec::with_capacity((n + 1) * fl);
+            for s in &seq.steps {
+                self.ring.frames.read(self.ring.slot(s.unwrap_or(pad)), fl, &mut frames);
+            }
+            let mut acts = Vec::with_capacity(n);
+            let mut rews = Vec::with_capacity(n);
+            for i in 0..n {
+                match (seq.steps[i], seq.steps[i + 1]) {
+                    (Some(_), Some(next)) => {
+                        acts.push(self.ring.action[self.ring.slot(next)]);
+                        rews.push(self.ring.reward[self.ring.slot(next)]);
+                    }
+                    _ => {
+                        acts.push([0.0; ACTION_DIM]);
+                        rews.push(0.0);
+                    }
+                }
+            }
+            b.add(&frames, &acts, &rews, 0.0, eta_n as f32);
+        }
+        b.finish(self.kind, n_t, &self.device)
+    }
+}
+
+/// Collects samples into batch tensors.
+struct BatchBuilder {
+    n: usize,
+    fl: usize,
+    b: usize,
+    obs_frames: Vec<f32>,
+    next_frames: Vec<f32>,
+    obs_actions: Vec<f32>,
+    next_actions: Vec<f32>,
+    obs_rewards: Vec<f32>,
+    next_rewards: Vec<f32>,
+    action: Vec<f32>,
+    reward: Vec<f32>,
+    done: Vec<f32>,
+    weight: Vec<f32>,
+}
+
+impl BatchBuilder {
+    fn new(b: usize, n: usize, fl: usize) -> BatchBuilder {
+        BatchBuilder {
+            n,
+            fl,
+            b,
+            obs_frames: Vec::with_capacity(b * n * fl),
+            next_frames: Vec::with_capacity(b * n * fl),
+            obs_actions: Vec::with_capacity(b * n * ACTION_DIM),
+            next_actions: Vec::with_capacity(b * n * ACTION_DIM),
+            obs_rewards: Vec::with_capacity(b * n),
+            next_rewards: Vec::with_capacity(b * n),
+            action: Vec::with_capacity(b * ACTION_DIM),
+            reward: Vec::with_capacity(b),
+            done: Vec::with_capacity(b),
+            weight: Vec::with_capacity(b),
+        }
+    }
+
+    /// `frames`: N_h + 1 frames; `acts`/`rews`: the N_h history entries of the sequence.
+    fn add(&mut self, frames: &[f32], acts: &[[f32; ACTION_DIM]], rews: &[f32], done: f32, weight: f32) {
+        let (n, fl) = (self.n, self.fl);
+        self.obs_frames.extend_from_slice(&frames[..n * fl]);
+        self.next_frames.extend_from_slice(&frames[fl..]);
+        self.obs_actions.extend(acts[..n - 1].iter().flatten());
+        self.next_actions.extend(acts[1..].iter().flatten());
+        self.obs_rewards.extend_from_slice(&rews[..n - 1]);
+        self.next_rewards.extend_from_slice(&rews[1..]);
+        self.action.extend_from_slice(&acts[n - 1]);
+        self.reward.push(rews[n - 1]);
+        self.done.push(done);
+        self.weight.push(weight);
+    }
+
+    fn finish(self, kind: FrameKind, n_terminal: usize, dev: &Device) -> Result<Batch> {
+        let (b, n) = (self.b, self.n);
+        let obs = |frames: Vec<f32>, actions: Vec<f32>, rewards: Vec<f32>| -> Result<Obs> {
+            Ok(match kind {
+                FrameKind::Pixels { size } => Obs::Pixels {
+                    frames: Tensor::from_vec(frames, (b, n, size, size), dev)?,
+                    actions: Tensor::from_vec(actions, (b, n - 1, ACTION_DIM), dev)?,
+                    rewards: Tensor::from_vec(rewards, (b, n - 1), dev)?,
+                },
+                FrameKind::State { dim } => Obs::State(Tensor::from_vec(frames, (b, dim), dev)?),
+            })
+        };
+        Ok(Batch {
+            obs: obs(self.obs_frames, self.obs_actions, self.obs_rewards)?,
+            next_obs: obs(self.next_frames, self.next_actions, self.next_rewards)?,
+            action: Tensor::from_vec(self.action, (b, ACTION_DIM), dev)?,
+            reward: Tensor::from_vec(self.reward, b, dev)?,
+            done: Tensor::from_vec(self.done, b, dev)?,
+            weight: Tensor::from_vec(self.weight, b, dev)?,
+            n_terminal,
+        })
+    }
+}
