@@ -133,72 +133,100 @@ impl Geometry {
         };
         Ok(Geometry { b: *b, t: *t, h: *h, w: *wd, ci: *ci, to, ho, wo, co: *co, spec })
     }
-    fn k(&self) -> usize {
-        self.spec.weight_rows(self.ci)
+    /// Columns of the per-frame (spatial) im2col matrix: k_h·k_w·C_in.
+    fn ks(&self) -> usize {
+        self.spec.kernel[1] * self.spec.kernel[2] * self.ci
     }
-    fn p(&self) -> usize {
-        self.to * self.ho * self.wo
+    /// Output positions per frame.
+    fn ps(&self) -> usize {
+        self.ho * self.wo
     }
     fn in_len(&self) -> usize {
         self.t * self.h * self.w * self.ci
     }
     fn out_len(&self) -> usize {
-        self.p() * self.co
+        self.to * self.ps() * self.co
     }
-    /// True when im2col is the identity (1×1×1 kernel, stride 1, no padding).
-    fn is_pointwise(&self) -> bool {
-        self.spec.kernel == [1, 1, 1] && self.spec.stride == [1, 1] && self.spec.padding == [0, 0]
+    fn cols_len(&self) -> usize {
+        self.t * self.ps() * self.ks()
+    }
+    /// True when the spatial im2col is the identity (1×1 kernel, stride 1, no padding):
+    /// then the input itself is the column matrix, whatever the temporal kernel.
+    fn spatially_pointwise(&self) -> bool {
+        self.spec.kernel[1] == 1
+            && self.spec.kernel[2] == 1
+            && self.spec.stride == [1, 1]
+            && self.spec.padding == [0, 0]
+    }
+    /// Row offset (in frames·positions) of temporal tap `dt` in the column matrix.
+    fn tap_row(&self, dt: usize) -> usize {
+        dt * self.spec.dilation_t * self.ps()
     }
 }
 
-/// Visit every (row of the im2col matrix, contiguous run of the input) pair:
+// The temporal taps of a kernel read the *same* spatial patches, shifted by d_t
+// frames. So the column matrix is built once per input frame (T·H_out·W_out rows of
+// k_h·k_w·C_in), and tap dt is a contiguous block of rows starting at frame dt·d_t:
+// y = Σ_dt cols[dt·d_t·P .. (dt·d_t + T_out)·P] · W_dt, one gemm per tap, no
+// duplicated patches.
+
+/// Visit every (column-matrix offset, contiguous input run) pair of one sample:
 /// `f(col_offset, Some(input_offset), len)` copies, `f(col_offset, None, len)` is padding.
 #[inline(always)]
 fn for_each_run(g: &Geometry, mut f: impl FnMut(usize, Option<usize>, usize)) {
-    let [kt, kh, kw] = g.spec.kernel;
+    let [_, kh, kw] = g.spec.kernel;
     let [sh, sw] = g.spec.stride;
     let [ph, pw] = g.spec.padding;
-    let k = g.k();
+    let ks = g.ks();
     let ci = g.ci;
-    let mut p = 0;
-    for to in 0..g.to {
+    let mut row = 0;
+    for t in 0..g.t {
         for ho in 0..g.ho {
             for wo in 0..g.wo {
-                let row = p * k;
-                for dt in 0..kt {
-                    let t = to + dt * g.spec.dilation_t;
-                    for dh in 0..kh {
-                        let base = row + (dt * kh + dh) * kw * ci;
-                        let h = (ho * sh + dh) as isize - ph as isize;
-                        if h < 0 || h >= g.h as isize {
-                            f(base, None, kw * ci);
-                            continue;
-                        }
-                        let plane = (t * g.h + h as usize) * g.w;
-                        let w0 = (wo * sw) as isize - pw as isize;
-                        if w0 >= 0 && w0 as usize + kw <= g.w {
-                            f(base, Some((plane + w0 as usize) * ci), kw * ci);
-                        } else {
-                            for dw in 0..kw {
-                                let wi = w0 + dw as isize;
-                                if wi < 0 || wi >= g.w as isize {
-                                    f(base + dw * ci, None, ci);
-                                } else {
-                                    f(base + dw * ci, Some((plane + wi as usize) * ci), ci);
-                                }
+                let base_row = row * ks;
+                for dh in 0..kh {
+                    let base = base_row + dh * kw * ci;
+                    let h = (ho * sh + dh) as isize - ph as isize;
+                    if h < 0 || h >= g.h as isize {
+                        f(base, None, kw * ci);
+                        continue;
+                    }
+                    let plane = (t * g.h + h as usize) * g.w;
+                    let w0 = (wo * sw) as isize - pw as isize;
+                    if w0 >= 0 && w0 as usize + kw <= g.w {
+                        f(base, Some((plane + w0 as usize) * ci), kw * ci);
+                    } else {
+                        for dw in 0..kw {
+                            let wi = w0 + dw as isize;
+                            if wi < 0 || wi >= g.w as isize {
+                                f(base + dw * ci, None, ci);
+                            } else {
+                                f(base + dw * ci, Some((plane + wi as usize) * ci), ci);
                             }
                         }
                     }
                 }
-                p += 1;
+                row += 1;
             }
         }
     }
 }
 
+/// Copy short runs element by element (a `memcpy` call costs more than 4–16 floats).
+#[inline(always)]
+fn copy_run(dst: &mut [f32], src: &[f32]) {
+    if dst.len() <= 16 {
+        for (d, s) in dst.iter_mut().zip(src) {
+            *d = *s;
+        }
+    } else {
+        dst.copy_from_slice(src);
+    }
+}
+
 fn im2col(g: &Geometry, x: &[f32], cols: &mut [f32]) {
     for_each_run(g, |c, src, len| match src {
-        Some(s) => cols[c..c + len].copy_from_slice(&x[s..s + len]),
+        Some(s) => copy_run(&mut cols[c..c + len], &x[s..s + len]),
         None => cols[c..c + len].fill(0.0),
     });
 }
@@ -238,9 +266,9 @@ fn matmul(
         return;
     }
     // Safety: the slices cover every element addressed by the strides (checked by
-    // the debug assertions), and `dst` does not alias the inputs (distinct borrows).
-    debug_assert!(lhs.len() > (m - 1) * lhs_strides.0 + (k - 1) * lhs_strides.1);
-    debug_assert!(rhs.len() > (k - 1) * rhs_strides.0 + (n - 1) * rhs_strides.1);
+    // the assertions), and `dst` does not alias the inputs (distinct borrows).
+    assert!(lhs.len() > (m - 1) * lhs_strides.0 + (k - 1) * lhs_strides.1);
+    assert!(rhs.len() > (k - 1) * rhs_strides.0 + (n - 1) * rhs_strides.1);
     unsafe {
         gemm::gemm(
             m,
@@ -272,31 +300,42 @@ fn inner_parallelism(batch: usize) -> Parallelism {
     if batch < threads { Parallelism::Rayon(threads) } else { Parallelism::None }
 }
 
+/// Samples per rayon task: one accumulator/scratch per worker, not per sample.
+fn min_len(batch: usize) -> usize {
+    batch.div_ceil(rayon::current_num_threads()).max(1)
+}
+
 fn forward(g: &Geometry, x: &[f32], w: &[f32], bias: &[f32]) -> Vec<f32> {
-    let (k, p, co) = (g.k(), g.p(), g.co);
+    let (ks, co, rows) = (g.ks(), g.co, g.to * g.ps());
     let mut out = vec![0f32; g.b * g.out_len()];
     let par = inner_parallelism(g.b);
-    let pointwise = g.is_pointwise();
-    out.par_chunks_mut(g.out_len().max(1)).zip(x.par_chunks(g.in_len().max(1))).for_each_init(
-        || if pointwise { Vec::new() } else { vec![0f32; p * k] },
-        |cols, (y, xb)| {
-            for row in y.chunks_exact_mut(co) {
-                row.copy_from_slice(bias);
-            }
-            let lhs: &[f32] = if pointwise {
-                xb
-            } else {
-                im2col(g, xb, cols);
-                cols
-            };
-            matmul(p, co, k, y, true, lhs, (k, 1), w, (co, 1), par);
-            if g.spec.relu {
-                for v in y.iter_mut() {
-                    *v = v.max(0.0);
+    let pointwise = g.spatially_pointwise();
+    out.par_chunks_mut(g.out_len().max(1))
+        .zip(x.par_chunks(g.in_len().max(1)))
+        .with_min_len(min_len(g.b))
+        .for_each_init(
+            || if pointwise { Vec::new() } else { vec![0f32; g.cols_len()] },
+            |cols, (y, xb)| {
+                for row in y.chunks_exact_mut(co) {
+                    row.copy_from_slice(bias);
                 }
-            }
-        },
-    );
+                let lhs: &[f32] = if pointwise {
+                    xb
+                } else {
+                    im2col(g, xb, cols);
+                    cols
+                };
+                for dt in 0..g.spec.kernel[0] {
+                    let tap = &lhs[g.tap_row(dt) * ks..];
+                    matmul(rows, co, ks, y, true, tap, (ks, 1), &w[dt * ks * co..], (co, 1), par);
+                }
+                if g.spec.relu {
+                    for v in y.iter_mut() {
+                        *v = v.max(0.0);
+                    }
+                }
+            },
+        );
     out
 }
 
@@ -309,9 +348,10 @@ fn backward(
     dy: &[f32],
     need_dx: bool,
 ) -> (Option<Vec<f32>>, Vec<f32>, Vec<f32>) {
-    let (k, p, co) = (g.k(), g.p(), g.co);
+    let (ks, co, rows) = (g.ks(), g.co, g.to * g.ps());
+    let kt = g.spec.kernel[0];
     let par = inner_parallelism(g.b);
-    let pointwise = g.is_pointwise();
+    let pointwise = g.spatially_pointwise();
     let mut dx = if need_dx { vec![0f32; g.b * g.in_len()] } else { Vec::new() };
     let in_len = g.in_len().max(1);
     let out_len = g.out_len().max(1);
@@ -324,10 +364,10 @@ fn backward(
         gy: Vec<f32>,
     }
     let new_scratch = || Scratch {
-        dw: vec![0f32; k * co],
+        dw: vec![0f32; kt * ks * co],
         db: vec![0f32; co],
-        cols: if pointwise { Vec::new() } else { vec![0f32; p * k] },
-        dcols: if need_dx && !pointwise { vec![0f32; p * k] } else { Vec::new() },
+        cols: if pointwise { Vec::new() } else { vec![0f32; g.cols_len()] },
+        dcols: if need_dx && !pointwise { vec![0f32; g.cols_len()] } else { Vec::new() },
         gy: vec![0f32; g.out_len()],
     };
     let per_sample = |mut s: Scratch, xb: &[f32], yb: &[f32], dyb: &[f32], dxb: Option<&mut [f32]>| {
@@ -346,14 +386,23 @@ fn backward(
             im2col(g, xb, &mut s.cols);
             &s.cols
         };
-        // dW (k×co) += colsᵀ (k×p) · gy (p×co)
-        matmul(k, co, p, &mut s.dw, true, lhs, (1, k), &s.gy, (co, 1), par);
+        // dW_dt (ks×co) += tapᵀ (ks×rows) · gy (rows×co)
+        for dt in 0..kt {
+            let tap = &lhs[g.tap_row(dt) * ks..];
+            matmul(ks, co, rows, &mut s.dw[dt * ks * co..], true, tap, (1, ks), &s.gy, (co, 1), par);
+        }
         if let Some(dxb) = dxb {
-            // dcols (p×k) = gy (p×co) · wᵀ (co×k)
-            if pointwise {
-                matmul(p, k, co, dxb, false, &s.gy, (co, 1), w, (1, co), par);
-            } else {
-                matmul(p, k, co, &mut s.dcols, false, &s.gy, (co, 1), w, (1, co), par);
+            // dtap (rows×ks) += gy (rows×co) · W_dtᵀ (co×ks), into the column matrix
+            // (or straight into dx when im2col is the identity).
+            let dcols: &mut [f32] = if pointwise { dxb } else { &mut s.dcols };
+            if !pointwise {
+                dcols.fill(0.0);
+            }
+            for dt in 0..kt {
+                let off = g.tap_row(dt) * ks;
+                matmul(rows, ks, co, &mut dcols[off..], true, &s.gy, (co, 1), &w[dt * ks * co..], (1, co), par);
+            }
+            if !pointwise {
                 col2im_add(g, &s.dcols, dxb);
             }
         }
@@ -368,19 +417,17 @@ fn backward(
         }
         a
     };
-    // One accumulator per worker, not per sample.
-    let min_len = g.b.div_ceil(rayon::current_num_threads()).max(1);
     let total = if need_dx {
         dx.par_chunks_mut(in_len)
             .zip(x.par_chunks(in_len))
             .zip(y.par_chunks(out_len).zip(dy.par_chunks(out_len)))
-            .with_min_len(min_len)
+            .with_min_len(min_len(g.b))
             .fold(new_scratch, |s, ((dxb, xb), (yb, dyb))| per_sample(s, xb, yb, dyb, Some(dxb)))
             .reduce(new_scratch, merge)
     } else {
         x.par_chunks(in_len)
             .zip(y.par_chunks(out_len).zip(dy.par_chunks(out_len)))
-            .with_min_len(min_len)
+            .with_min_len(min_len(g.b))
             .fold(new_scratch, |s, (xb, (yb, dyb))| per_sample(s, xb, yb, dyb, None))
             .reduce(new_scratch, merge)
     };

@@ -1,0 +1,172 @@
+//! Learner compute benchmark (issues #3/#4): ms per DSAC update for the paper's
+//! and the CPU preset's network configurations, with and without replay sampling,
+//! and the actor's policy step (full recompute vs streaming cache).
+//!
+//! `cargo bench -p pednav-learner --bench dsac_update [-- --quick] [-- --only a,c]`
+//!
+//! Reference (PyTorch 2.x, same networks and update, 2 threads, this machine;
+//! DESIGN §7): (a) 1403 ms, (b) 146 ms, (c) 69 ms, (d) 39 ms; policy forward without
+//! gradients 2.5 ms for one observation, 22 ms for 16.
+
+use std::time::Instant;
+
+use candle_core::Device;
+use pednav_learner::{Dsac, DsacConfig, DualReplay, Frame, FrameKind, ReplayConfig, Step};
+use pednav_nets::{EncoderKind, NetsConfig, PolicyStream, init_cpu_runtime};
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+
+struct Case {
+    key: &'static str,
+    what: &'static str,
+    batch: usize,
+    nets: NetsConfig,
+    pytorch_ms: f64,
+}
+
+fn cases() -> Vec<Case> {
+    let base = NetsConfig::default();
+    vec![
+        Case {
+            key: "a",
+            what: "3D-TCN separate, B 64, N_h 16, 84²",
+            batch: 64,
+            nets: base.clone(),
+            pytorch_ms: 1403.0,
+        },
+        Case {
+            key: "b",
+            what: "frame-stack, B 64, N_h 16, 84²",
+            batch: 64,
+            nets: NetsConfig { encoder: EncoderKind::FrameStack, ..base.clone() },
+            pytorch_ms: 146.0,
+        },
+        Case {
+            key: "c",
+            what: "3D-TCN separate, B 32, N_h 8, 42²",
+            batch: 32,
+            nets: NetsConfig { history: 8, image_size: 42, ..base.clone() },
+            pytorch_ms: 69.0,
+        },
+        Case {
+            key: "d",
+            what: "3D-TCN shared, B 32, N_h 8, 42²",
+            batch: 32,
+            nets: NetsConfig { history: 8, image_size: 42, shared_encoder: true, ..base },
+            pytorch_ms: 39.0,
+        },
+    ]
+}
+
+fn fill(replay: &mut DualReplay, size: usize, steps: usize, rng: &mut ChaCha8Rng) {
+    let mut frame = vec![0u8; size * size];
+    for i in 0..steps {
+        rng.fill(&mut frame[..]);
+        let t = i % 100;
+        let a: [f32; 3] = std::array::from_fn(|_| rng.random_range(-1.0..1.0));
+        replay
+            .push(&Step {
+                stream: 0,
+                first: t == 0,
+                frame: Frame::Pixels(&frame),
+                action: a,
+                reward: -0.1,
+                terminal: t == 99 && i % 300 == 99,
+            })
+            .unwrap();
+    }
+}
+
+fn median(mut v: Vec<f64>) -> f64 {
+    v.sort_by(|a, b| a.partial_cmp(b).unwrap());
+    v[v.len() / 2]
+}
+
+fn main() {
+    let args: Vec<String> = std::env::args().collect();
+    let quick = args.iter().any(|a| a == "--quick");
+    let only: Option<Vec<String>> =
+        args.iter().position(|a| a == "--only").map(|i| args[i + 1].split(',').map(String::from).collect());
+    let threads = init_cpu_runtime(None);
+    println!("threads: {threads}");
+    println!(
+        "| config | networks only ms/update | sample + update ms | sampling share | PyTorch ms | ratio (ours/PyTorch) |"
+    );
+    println!("|---|---|---|---|---|---|");
+    let mut rng = ChaCha8Rng::seed_from_u64(0);
+    for case in cases() {
+        if only.as_ref().is_some_and(|o| !o.iter().any(|k| k == case.key)) {
+            continue;
+        }
+        let cfg = DsacConfig { batch_size: case.batch, warmup: case.batch as u64, ..Default::default() };
+        let mut dsac = Dsac::new(&cfg, &case.nets, &Device::Cpu, 0).unwrap();
+        let rc = ReplayConfig { nonterminal_capacity: 5_000, terminal_capacity: 100 };
+        let mut replay =
+            DualReplay::new(&rc, FrameKind::Pixels { size: case.nets.image_size }, case.nets.history, &Device::Cpu)
+                .unwrap();
+        fill(&mut replay, case.nets.image_size, 3_000, &mut rng);
+        let reps = if quick || case.key == "a" { 3 } else { 10 };
+        let batch = replay.sample(case.batch, &mut rng).unwrap();
+        dsac.update(&batch).unwrap(); // warm-up (allocator, caches)
+        let mut net_ms = Vec::new();
+        let mut full_ms = Vec::new();
+        let mut sample_ms = Vec::new();
+        for _ in 0..reps {
+            let t = Instant::now();
+            dsac.update(&batch).unwrap();
+            net_ms.push(t.elapsed().as_secs_f64() * 1e3);
+            let t = Instant::now();
+            let b = replay.sample(case.batch, &mut rng).unwrap();
+            let s = t.elapsed().as_secs_f64() * 1e3;
+            dsac.update(&b).unwrap();
+            full_ms.push(t.elapsed().as_secs_f64() * 1e3);
+            sample_ms.push(s);
+        }
+        let (n, f, s) = (median(net_ms), median(full_ms), median(sample_ms));
+        println!(
+            "| ({}) {} | {n:.0} | {f:.0} | {:.1} % | {:.0} | {:.2} |",
+            case.key,
+            case.what,
+            100.0 * s / f,
+            case.pytorch_ms,
+            n / case.pytorch_ms
+        );
+    }
+
+    println!();
+    println!("| actor policy step (no gradients) | envs | full recompute ms | streaming cache ms | cache/full |");
+    println!("|---|---|---|---|---|");
+    for (history, size) in [(16, 84), (8, 42)] {
+        let nets_cfg = NetsConfig { history, image_size: size, ..Default::default() };
+        let nets = pednav_nets::DsacNets::new(&nets_cfg, &Device::Cpu, 0).unwrap();
+        for envs in [1usize, 16] {
+            let ids: Vec<usize> = (0..envs).collect();
+            let mut stream = PolicyStream::new(&nets_cfg, envs, &Device::Cpu);
+            let mut frame = vec![0u8; size * size];
+            for e in 0..envs {
+                rng.fill(&mut frame[..]);
+                stream.reset(e, &frame).unwrap();
+            }
+            let enc = nets.acting_encoder();
+            let reps = if quick { 5 } else { 20 };
+            let (mut full, mut cached) = (Vec::new(), Vec::new());
+            for _ in 0..reps {
+                for e in 0..envs {
+                    rng.fill(&mut frame[..]);
+                    stream.push(e, [0.1, 0.2, 0.3], -0.1, &frame).unwrap();
+                }
+                let t = Instant::now();
+                let f = stream.features(enc, &ids).unwrap();
+                nets.policy.head(&f).unwrap();
+                cached.push(t.elapsed().as_secs_f64() * 1e3);
+                let t = Instant::now();
+                let obs = stream.observation(&ids).unwrap();
+                let f = enc.encode(&obs).unwrap();
+                nets.policy.head(&f).unwrap();
+                full.push(t.elapsed().as_secs_f64() * 1e3);
+            }
+            let (fm, cm) = (median(full), median(cached));
+            println!("| 3D-TCN N_h {history}, {size}² | {envs} | {fm:.2} | {cm:.2} | {:.3} |", cm / fm);
+        }
+    }
+}
