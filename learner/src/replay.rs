@@ -372,17 +372,11 @@ impl DualReplay {
         seq.steps.iter().flatten().copied().next().expect("a sequence holds at least its own step")
     }
 
-    fn store_terminal(&mut self, g: u64) -> Result<()> {
-        let Some(seq) = self.sequence(g) else { return Ok(()) };
+    /// The N_h action/reward history entries of a sequence: entry i is the action
+    /// taken after the frame at position i (stored with the step at i + 1), zero
+    /// before the episode start.
+    fn history_of(&self, seq: &Sequence) -> (Vec<[f32; ACTION_DIM]>, Vec<f32>) {
         let n = self.history;
-        let e = self.term_next;
-        let pad = Self::first_present(&seq);
-        for (i, s) in seq.steps.iter().enumerate() {
-            let src = self.ring.slot(s.unwrap_or(pad));
-            self.ring.frames.copy_to(src, self.frame_len, &mut self.term_frames, e * (n + 1) + i);
-        }
-        // Entry i of the action/reward history: the action taken after the frame at
-        // sequence position i, stored with the step at position i + 1.
         let (mut acts, mut rews) = (Vec::with_capacity(n), Vec::with_capacity(n));
         for i in 0..n {
             match (seq.steps[i], seq.steps[i + 1]) {
@@ -397,6 +391,19 @@ impl DualReplay {
                 }
             }
         }
+        (acts, rews)
+    }
+
+    fn store_terminal(&mut self, g: u64) -> Result<()> {
+        let Some(seq) = self.sequence(g) else { return Ok(()) };
+        let n = self.history;
+        let e = self.term_next;
+        let pad = Self::first_present(&seq);
+        for (i, s) in seq.steps.iter().enumerate() {
+            let src = self.ring.slot(s.unwrap_or(pad));
+            self.ring.frames.copy_to(src, self.frame_len, &mut self.term_frames, e * (n + 1) + i);
+        }
+        let (acts, rews) = self.history_of(&seq);
         write_slot(&mut self.term_actions, e, &acts);
         write_slot(&mut self.term_rewards, e, &rews);
         self.term_next = (e + 1) % self.term_cap;
@@ -453,20 +460,7 @@ impl DualReplay {
             for s in &seq.steps {
                 self.ring.frames.read(self.ring.slot(s.unwrap_or(pad)), fl, &mut frames);
             }
-            let mut acts = Vec::with_capacity(n);
-            let mut rews = Vec::with_capacity(n);
-            for i in 0..n {
-                match (seq.steps[i], seq.steps[i + 1]) {
-                    (Some(_), Some(next)) => {
-                        acts.push(self.ring.action[self.ring.slot(next)]);
-                        rews.push(self.ring.reward[self.ring.slot(next)]);
-                    }
-                    _ => {
-                        acts.push([0.0; ACTION_DIM]);
-                        rews.push(0.0);
-                    }
-                }
-            }
+            let (acts, rews) = self.history_of(&seq);
             b.add(&frames, &acts, &rews, 0.0, eta_n as f32);
         }
         b.finish(self.kind, n_t, &self.device)

@@ -130,8 +130,7 @@ impl PolicyNet {
         device: &Device,
         rng: &mut ChaCha8Rng,
     ) -> Result<Self> {
-        let mut store = ParamStore::new("policy", device);
-        let encoder = if own_encoder { Some(Encoder::new(&mut store, cfg, rng)?) } else { None };
+        let (mut store, encoder) = store_with_encoder("policy", cfg, own_encoder, device, rng)?;
         let fc = Dense::new(&mut store, "fc", feature_dim, cfg.hidden, rng)?;
         let mean = Dense::new(&mut store, "mean", cfg.hidden, ACTION_DIM, rng)?;
         let raw_scale = Dense::new(&mut store, "scale", cfg.hidden, 6, rng)?;
@@ -179,8 +178,7 @@ impl FractionNet {
         device: &Device,
         rng: &mut ChaCha8Rng,
     ) -> Result<Self> {
-        let mut store = ParamStore::new("fraction", device);
-        let encoder = if own_encoder { Some(Encoder::new(&mut store, cfg, rng)?) } else { None };
+        let (mut store, encoder) = store_with_encoder("fraction", cfg, own_encoder, device, rng)?;
         let fc = Dense::new(&mut store, "fc", feature_dim + ACTION_DIM, cfg.hidden, rng)?;
         let logits = Dense::new(&mut store, "logits", cfg.hidden, cfg.quantiles, rng)?;
         Ok(FractionNet { store, encoder, fc, logits, n: cfg.quantiles })
@@ -252,8 +250,7 @@ impl QuantileNet {
         device: &Device,
         rng: &mut ChaCha8Rng,
     ) -> Result<Self> {
-        let mut store = ParamStore::new(name, device);
-        let encoder = if own_encoder { Some(Encoder::new(&mut store, cfg, rng)?) } else { None };
+        let (mut store, encoder) = store_with_encoder(name, cfg, own_encoder, device, rng)?;
         let fc = Dense::new(&mut store, "fc", feature_dim + ACTION_DIM, cfg.hidden, rng)?;
         let out = Dense::new(&mut store, "grid", cfg.hidden, cfg.quantile_grid + 1, rng)?;
         Ok(QuantileNet { store, encoder, fc, out, grid: cfg.quantile_grid })
@@ -269,6 +266,19 @@ impl QuantileNet {
         let values = Tensor::cat(&[&base, &inc.broadcast_add(&base)?], 1)?;
         Ok(QuantileGrid { values, intervals: self.grid })
     }
+}
+
+/// A parameter store for the network `name`, holding its own encoder if asked.
+fn store_with_encoder(
+    name: &str,
+    cfg: &NetsConfig,
+    own_encoder: bool,
+    device: &Device,
+    rng: &mut ChaCha8Rng,
+) -> Result<(ParamStore, Option<Encoder>)> {
+    let mut store = ParamStore::new(name, device);
+    let encoder = if own_encoder { Some(Encoder::new(&mut store, cfg, rng)?) } else { None };
+    Ok((store, encoder))
 }
 
 /// Run `encoder` on `obs` if there is one, else return the given shared features.
