@@ -123,6 +123,8 @@ proptest! {
         let mut state: Vec<(u32, u32, u32, bool)> = (0..streams).map(|_| (0, 0, rng.random_range(1..12), rng.random_bool(0.5))).collect();
         let mut terminal_at = HashMap::new();
         let mut checked = 0;
+        // Global index of each stream's last stored step (None: dropped until its next start).
+        let mut last_stored: HashMap<u64, Option<u64>> = HashMap::new();
         for _ in 0..capacity * 3 {
             let s = rng.random_range(0..streams);
             let (ep, t, len, goal) = state[s as usize];
@@ -138,7 +140,13 @@ proptest! {
                 reward: if t == 0 { 9.0 } else { reward(s, ep, t - 1) },
                 terminal,
             };
-            prop_assert!(replay.push(&step).unwrap());
+            // A step whose predecessor was overwritten (its stream idled while others
+            // filled the ring) is dropped, as is the rest of that episode.
+            let head = replay.inserted();
+            let expect = t == 0 || last_stored.get(&s).copied().flatten().is_some_and(|g| g + capacity as u64 >= head);
+            let stored = replay.push(&step).unwrap();
+            prop_assert_eq!(stored, expect);
+            last_stored.insert(s, stored.then_some(head));
             state[s as usize] = if last { (ep + 1, 0, rng.random_range(1..12), rng.random_bool(0.5)) } else { (ep, t + 1, len, goal) };
             if replay.nonterminal_len() + replay.terminal_len() > 0 && rng.random_bool(0.3) {
                 let Ok(batch) = replay.sample(8, &mut rng) else { continue };
