@@ -17,7 +17,7 @@ use std::fs;
 use std::path::{Path, PathBuf};
 
 use candle_core::Tensor;
-use pednav_nets::NetsConfig;
+use pednav_nets::{NetsConfig, ParamStore};
 use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
 
@@ -57,6 +57,11 @@ fn ck_err(path: &Path, message: impl Into<String>) -> LearnerError {
     LearnerError::Checkpoint { path: path.to_path_buf(), message: message.into() }
 }
 
+/// Every parameter store a checkpoint holds: the four networks and log α.
+fn checkpoint_stores(dsac: &Dsac) -> Vec<ParamStore> {
+    dsac.nets.stores().into_iter().chain([&dsac.log_alpha]).cloned().collect()
+}
+
 fn crc_of(path: &Path) -> Result<u32> {
     let bytes = fs::read(path).map_err(|e| ck_err(path, format!("cannot read: {e}")))?;
     Ok(crc32fast::hash(&bytes))
@@ -76,8 +81,7 @@ pub fn save_checkpoint(
     }
     fs::create_dir_all(&tmp).map_err(|e| ck_err(&tmp, format!("cannot create: {e}")))?;
     let mut checksums = BTreeMap::new();
-    let mut stores: Vec<_> = dsac.nets.stores().into_iter().cloned().collect();
-    stores.push(dsac.log_alpha.clone());
+    let stores = checkpoint_stores(dsac);
     for store in &stores {
         let file = format!("{}.safetensors", store.name());
         let path = tmp.join(&file);
@@ -163,8 +167,7 @@ pub fn load_checkpoint(dir: &Path, dsac: &mut Dsac) -> Result<CheckpointMeta> {
         }
         candle_core::safetensors::load(&path, &dev).map_err(|e| ck_err(&path, e.to_string()))
     };
-    let mut stores: Vec<_> = dsac.nets.stores().into_iter().cloned().collect();
-    stores.push(dsac.log_alpha.clone());
+    let stores = checkpoint_stores(dsac);
     let mut weights = Vec::new();
     for store in &stores {
         let values = read(&format!("{}.safetensors", store.name()))?;

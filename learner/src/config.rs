@@ -65,6 +65,8 @@ impl Default for DsacConfig {
 
 impl DsacConfig {
     /// Reject impossible values, naming the field.
+    // `!(x > 0.0)` on purpose: it also rejects NaN.
+    #[allow(clippy::neg_cmp_op_on_partial_ord)]
     pub fn validate(&self) -> Result<()> {
         if !(0.0..1.0).contains(&self.gamma) {
             return Err(config_error("gamma", self.gamma, "must be in [0, 1)"));

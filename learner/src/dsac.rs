@@ -173,10 +173,11 @@ impl Dsac {
         let eta = &batch.weight;
 
         // TD target (no gradients).
-        let next_policy = nets.policy.head(&nets.policy_features(&batch.next_obs)?.detach())?;
+        let (next_policy_features, next_fraction_features) = nets.policy_and_fraction_features(&batch.next_obs)?;
+        let next_policy = nets.policy.head(&next_policy_features.detach())?;
         let next = next_policy.sample(&standard_normal(&mut self.rng, bsz, &dev)?)?;
         let (a_next, logp_next) = (next.action.detach(), next.log_prob.detach());
-        let next_fr = nets.fraction.fractions(&nets.fraction_features(&batch.next_obs)?.detach(), &a_next)?;
+        let next_fr = nets.fraction.fractions(&next_fraction_features.detach(), &a_next)?;
         let (next_hats, next_widths) = (next_fr.hats.detach(), next_fr.widths.detach());
         let z_next =
             nets.target.grid(&nets.target_features(&batch.next_obs)?.detach(), &a_next)?.at(&next_hats)?.detach();
@@ -197,7 +198,7 @@ impl Dsac {
         let q_mean = (&z.detach() * fr.widths.detach())?.sum(D::Minus1)?.mean_all()?.to_scalar::<f32>()? as f64;
 
         // Fraction proposal (quantile values detached; gradient through τ only).
-        let n = c_quantiles(&fr.taus);
+        let n = fr.taus.dims()[1] - 1;
         let fixed = QuantileGrid { values: grid.values.detach(), intervals: grid.intervals };
         let inner = fr.taus.narrow(1, 1, n - 1)?;
         let grad_w1 = fraction_gradient(&fixed.at(&inner.detach())?, &fixed.at(&hats)?)?.detach();
@@ -240,24 +241,27 @@ impl Dsac {
         let g_fraction = fraction_loss.backward()?;
         let g_policy = policy_loss.backward()?;
         let g_alpha = alpha_loss.backward()?;
-        stats.critic_grad_norm = self.opt_quantile.grad_norm(&g_critic)?;
-        stats.policy_grad_norm = self.opt_policy.grad_norm(&g_policy)?;
         let norms = [
-            stats.critic_grad_norm,
-            stats.policy_grad_norm,
+            self.opt_quantile.grad_norm(&g_critic)?,
             self.opt_fraction.grad_norm(&g_fraction)?,
+            self.opt_policy.grad_norm(&g_policy)?,
             self.opt_alpha.grad_norm(&g_alpha)?,
         ];
+        stats.critic_grad_norm = norms[0];
+        stats.policy_grad_norm = norms[2];
         if norms.iter().any(|v| !v.is_finite()) {
             return Ok(self.skip(stats, "non-finite gradient"));
         }
-        for (opt, grads) in [
+        for ((opt, grads), norm) in [
             (&mut self.opt_quantile, &g_critic),
             (&mut self.opt_fraction, &g_fraction),
             (&mut self.opt_policy, &g_policy),
             (&mut self.opt_alpha, &g_alpha),
-        ] {
-            let outcome = opt.step(grads)?;
+        ]
+        .into_iter()
+        .zip(norms)
+        {
+            let outcome = opt.step_with_norm(grads, norm)?;
             debug_assert!(matches!(outcome, StepOutcome::Applied { .. }), "norms were checked finite");
         }
         self.nets.target.store.soft_update(&self.nets.quantile.store, c.soft_update)?;
@@ -271,8 +275,4 @@ impl Dsac {
         stats.skipped = true;
         stats
     }
-}
-
-fn c_quantiles(taus: &Tensor) -> usize {
-    taus.dims()[1] - 1
 }

@@ -57,6 +57,7 @@ fn reward(stream: u64, ep: u32, t: u32) -> f32 {
 
 /// Check one sampled transition against the script: windows padded with the first
 /// frame and zero actions/rewards before the episode start.
+#[allow(clippy::too_many_arguments)]
 fn check_sample(
     obs: &Obs,
     next: &Obs,

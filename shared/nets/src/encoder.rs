@@ -82,6 +82,16 @@ pub fn spatial_out(image_size: usize) -> usize {
     SPATIAL_STAGES.iter().fold(image_size, |s, &(k, st, p, _)| (s + 2 * p - k) / st + 1)
 }
 
+/// Width of the feature vector the encoder of `cfg` produces.
+pub fn feature_dim(cfg: &NetsConfig) -> usize {
+    let side = spatial_out(cfg.image_size);
+    match cfg.encoder {
+        EncoderKind::Tcn => 64 * side * side + 2 * cfg.history_features,
+        EncoderKind::FrameStack => 64 * side * side,
+        EncoderKind::Mlp => cfg.hidden,
+    }
+}
+
 /// The 3D-TCN encoder.
 #[derive(Clone)]
 pub struct TcnEncoder {
@@ -124,9 +134,7 @@ impl TcnEncoder {
         };
         let actions = branch(store, "actions", ACTION_DIM, rng)?;
         let rewards = branch(store, "rewards", 1, rng)?;
-        let side = spatial_out(cfg.image_size);
-        let out_dim = 64 * side * side + 2 * cfg.history_features;
-        Ok(TcnEncoder { frames, actions, rewards, out_dim })
+        Ok(TcnEncoder { frames, actions, rewards, out_dim: feature_dim(cfg) })
     }
 
     /// Features of the frames alone: (B, 64·s·s).
@@ -169,8 +177,7 @@ impl FrameStackEncoder {
             convs.push(Conv::new(store, &format!("enc.conv{i}"), ConvSpec::spatial(k, s, p), c_in, c, rng)?);
             c_in = c;
         }
-        let side = spatial_out(cfg.image_size);
-        Ok(FrameStackEncoder { convs, out_dim: 64 * side * side })
+        Ok(FrameStackEncoder { convs, out_dim: feature_dim(cfg) })
     }
 }
 

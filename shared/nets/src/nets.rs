@@ -12,7 +12,7 @@ use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 
 use crate::config::NetsConfig;
-use crate::encoder::{Encoder, Obs};
+use crate::encoder::{Encoder, Obs, feature_dim};
 use crate::error::Result;
 use crate::heads::{FractionNet, PolicyNet, QuantileNet, features_of};
 use crate::params::ParamStore;
@@ -47,10 +47,7 @@ impl DsacNets {
     /// Build all networks from `seed` (each from its own stream of the seed).
     pub fn new(cfg: &NetsConfig, device: &Device, seed: u64) -> Result<DsacNets> {
         cfg.validate()?;
-        let feature_dim = {
-            let mut probe = ParamStore::new("probe", device);
-            Encoder::new(&mut probe, cfg, &mut ChaCha8Rng::seed_from_u64(0))?.out_dim()
-        };
+        let feature_dim = feature_dim(cfg);
         let own = !cfg.shared_encoder;
         let rng = |stream: u64| {
             let mut r = ChaCha8Rng::seed_from_u64(seed);
@@ -82,12 +79,17 @@ impl DsacNets {
         }
     }
 
-    /// Features for the fraction head alone.
-    pub fn fraction_features(&self, obs: &Obs) -> Result<Tensor> {
-        match &self.fraction.encoder {
-            Some(e) => e.encode(obs),
-            None => Ok(features_of(&self.quantile.encoder, obs, None)?.detach()),
-        }
+    /// Features for the policy and fraction heads (the next state's a′ and τ′):
+    /// with a shared encoder it runs once for both.
+    pub fn policy_and_fraction_features(&self, obs: &Obs) -> Result<(Tensor, Tensor)> {
+        let shared = match (&self.policy.encoder, &self.fraction.encoder) {
+            (Some(_), Some(_)) => None,
+            _ => Some(features_of(&self.quantile.encoder, obs, None)?),
+        };
+        Ok((
+            features_of(&self.policy.encoder, obs, shared.as_ref())?,
+            features_of(&self.fraction.encoder, obs, shared.as_ref())?,
+        ))
     }
 
     /// Features of the target quantile net.

@@ -98,6 +98,12 @@ impl AdamW {
     /// One AdamW step from `grads`.
     pub fn step(&mut self, grads: &GradStore) -> Result<StepOutcome> {
         let norm = self.grad_norm(grads)?;
+        self.step_with_norm(grads, norm)
+    }
+
+    /// One AdamW step from `grads` whose global norm the caller already computed
+    /// with [`AdamW::grad_norm`] (so a caller that checks norms first does not pay twice).
+    pub fn step_with_norm(&mut self, grads: &GradStore, norm: f64) -> Result<StepOutcome> {
         if !norm.is_finite() {
             return Ok(StepOutcome::SkippedNonFinite);
         }

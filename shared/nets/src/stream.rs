@@ -122,22 +122,26 @@ impl PolicyStream {
     pub fn observation(&self, envs: &[usize]) -> Result<Obs> {
         let n = self.cfg.history;
         let s = self.cfg.image_size;
-        let b = envs.len();
-        let mut frames = Vec::with_capacity(b * n);
-        let mut actions = Vec::with_capacity(b * n.saturating_sub(1) * ACTION_DIM);
-        let mut rewards = Vec::with_capacity(b * n.saturating_sub(1));
+        let mut frames = Vec::with_capacity(envs.len() * n);
         for &e in envs {
             let w = &self.envs[e];
             assert!(w.started, "observation of env {e} before reset");
             frames.extend(w.frames.iter().cloned());
-            actions.extend(w.actions.iter().flatten().copied());
-            rewards.extend(w.rewards.iter().copied());
         }
-        Ok(Obs::Pixels {
-            frames: Tensor::cat(&frames, 0)?.reshape((b, n, s, s))?,
-            actions: Tensor::from_vec(actions, (b, n - 1, ACTION_DIM), &self.device)?,
-            rewards: Tensor::from_vec(rewards, (b, n - 1), &self.device)?,
-        })
+        let (actions, rewards) = self.histories(envs)?;
+        Ok(Obs::Pixels { frames: Tensor::cat(&frames, 0)?.reshape((envs.len(), n, s, s))?, actions, rewards })
+    }
+
+    /// Past actions (len, N_h − 1, 3) and rewards (len, N_h − 1) of `envs`.
+    fn histories(&self, envs: &[usize]) -> Result<(Tensor, Tensor)> {
+        let n = self.cfg.history;
+        let b = envs.len();
+        let actions: Vec<f32> = envs.iter().flat_map(|&e| self.envs[e].actions.iter().flatten().copied()).collect();
+        let rewards: Vec<f32> = envs.iter().flat_map(|&e| self.envs[e].rewards.iter().copied()).collect();
+        Ok((
+            Tensor::from_vec(actions, (b, n - 1, ACTION_DIM), &self.device)?,
+            Tensor::from_vec(rewards, (b, n - 1), &self.device)?,
+        ))
     }
 
     /// Encoder features (len, F) of the current windows of `envs`, updating caches.
@@ -169,21 +173,9 @@ impl PolicyStream {
         let (_, _, h, w, c) = x.dims5()?;
         let x = x.reshape((envs.len(), kt, h, w, c))?;
         let f = last.forward(&x)?.reshape((envs.len(), ()))?;
-        let Obs::Pixels { actions, rewards, .. } = self.history_only(envs)? else { unreachable!() };
+        let (actions, rewards) = self.histories(envs)?;
         let hist = tcn.encode_history(&actions, &rewards)?;
         Ok(Tensor::cat(&[f, hist], D::Minus1)?)
-    }
-
-    fn history_only(&self, envs: &[usize]) -> Result<Obs> {
-        let n = self.cfg.history;
-        let b = envs.len();
-        let actions: Vec<f32> = envs.iter().flat_map(|&e| self.envs[e].actions.iter().flatten().copied()).collect();
-        let rewards: Vec<f32> = envs.iter().flat_map(|&e| self.envs[e].rewards.iter().copied()).collect();
-        Ok(Obs::Pixels {
-            frames: Tensor::zeros((b, 0), candle_core::DType::F32, &self.device)?,
-            actions: Tensor::from_vec(actions, (b, n - 1, ACTION_DIM), &self.device)?,
-            rewards: Tensor::from_vec(rewards, (b, n - 1), &self.device)?,
-        })
     }
 
     /// How many outputs of layer `l` (0..3) layer `l + 1` reads.

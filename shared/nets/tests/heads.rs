@@ -1,6 +1,6 @@
 //! Heads, networks, streaming cache and optimiser against independent values.
 
-use candle_core::{D, Device, IndexOp, Tensor, Var};
+use candle_core::{Device, IndexOp, Tensor, Var};
 use pednav_nets::heads::standard_normal;
 use pednav_nets::{
     AdamW, AdamWConfig, CholeskyGaussian, DsacNets, EncoderKind, NetsConfig, Obs, ParamStore, PolicyStream, StepOutcome,
@@ -230,6 +230,13 @@ fn expected_window(frames: &[Vec<u8>], actions: &[[f32; 3]], rewards: &[f32], n:
     }
 }
 
+/// Frames, actions and rewards of one scripted episode so far.
+type Episode = (Vec<Vec<u8>>, Vec<[f32; 3]>, Vec<f32>);
+
+fn max_abs(t: &Tensor) -> f32 {
+    t.abs().unwrap().flatten_all().unwrap().max(0).unwrap().to_scalar().unwrap()
+}
+
 #[test]
 fn streaming_cache_equals_full_recompute_over_an_episode_with_a_reset() {
     for (kind, history, size) in
@@ -242,49 +249,32 @@ fn streaming_cache_equals_full_recompute_over_an_episode_with_a_reset() {
         let envs = 2;
         let mut stream = PolicyStream::new(&cfg, envs, &Device::Cpu);
         let frame = |rng: &mut ChaCha8Rng| (0..size * size).map(|_| rng.random::<u8>()).collect::<Vec<u8>>();
-        let mut eps: Vec<(Vec<Vec<u8>>, Vec<[f32; 3]>, Vec<f32>)> = vec![Default::default(); envs];
+        let mut eps: Vec<Episode> = vec![Default::default(); envs];
         for step in 0..40 {
-            for e in 0..envs {
+            for (e, ep) in eps.iter_mut().enumerate() {
                 let f = frame(&mut rng);
                 // Env 0 resets at step 23 (mid-episode); env 1 runs one 40-step episode.
                 if step == 0 || (e == 0 && step == 23) {
                     stream.reset(e, &f).unwrap();
-                    eps[e] = (vec![f], vec![], vec![]);
+                    *ep = (vec![f], vec![], vec![]);
                 } else {
                     let a = [rng.random_range(-1.0..1.0), rng.random_range(-1.0..1.0), rng.random_range(-1.0..1.0)];
                     let r = rng.random_range(-3.0..1.0);
                     stream.push(e, a, r, &f).unwrap();
-                    eps[e].0.push(f);
-                    eps[e].1.push(a);
-                    eps[e].2.push(r);
+                    ep.0.push(f);
+                    ep.1.push(a);
+                    ep.2.push(r);
                 }
             }
             if step == 30 {
                 stream.invalidate();
             }
             let cached = stream.features(enc, &[0, 1]).unwrap();
-            for e in 0..envs {
-                let want = enc.encode(&expected_window(&eps[e].0, &eps[e].1, &eps[e].2, history, size)).unwrap();
+            for (e, ep) in eps.iter().enumerate() {
+                let want = enc.encode(&expected_window(&ep.0, &ep.1, &ep.2, history, size)).unwrap();
                 let got = cached.i(e..e + 1).unwrap();
-                let diff = (got - &want)
-                    .unwrap()
-                    .abs()
-                    .unwrap()
-                    .max_keepdim(D::Minus1)
-                    .unwrap()
-                    .flatten_all()
-                    .unwrap()
-                    .to_vec1::<f32>()
-                    .unwrap()[0];
-                let scale = want
-                    .abs()
-                    .unwrap()
-                    .max_keepdim(D::Minus1)
-                    .unwrap()
-                    .flatten_all()
-                    .unwrap()
-                    .to_vec1::<f32>()
-                    .unwrap()[0];
+                let diff = max_abs(&(got - &want).unwrap());
+                let scale = max_abs(&want);
                 assert!(
                     diff <= 1e-5 * (1.0 + scale),
                     "{kind:?} N_h {history}: step {step} env {e}: max |Δ| {diff} (scale {scale})"
