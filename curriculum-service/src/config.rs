@@ -11,12 +11,15 @@ use crate::error::{CurriculumError, Result};
 pub enum Variant {
     /// NavACL⁺ (Slope): easy / frontier / random, the frontier's lower bound
     /// widening with t_c (β_f^l = 1 + S·min(t_c/t_thre, 1)).
+    #[serde(rename = "navacl_plus_slope")]
     NavAclPlusSlope,
     /// NavACL⁺ (Hard): easy / frontier / hard, the hard probability rising
     /// linearly from 0 to `hard_max_prob` with t_c/t_thre.
+    #[serde(rename = "navacl_plus_hard")]
     NavAclPlusHard,
     /// NavACL (the baseline): success prediction on initial tasks only,
     /// easy / frontier / random, no PassFirstTask gate.
+    #[serde(rename = "navacl")]
     NavAcl,
     /// Non-ACL variants: always the scene's fixed start.
     FixedStart,

@@ -16,9 +16,9 @@ use pednav_sim::{Pose, Scene};
 use crate::config::{CurriculumConfig, Variant};
 use crate::error::{CurriculumError, Result};
 use crate::filter::Category;
-use crate::net::{Target, TaskValueNet};
+use crate::net::{NetState, Target, TaskValueNet};
 use crate::returns::{discounted_returns, task_features};
-use crate::scheduler::{Proposal, ReturnPredictor, TaskScheduler};
+use crate::scheduler::{Proposal, ReturnPredictor, SchedulerState, TaskScheduler};
 
 /// What the actor reports at the end of an episode.
 #[derive(Debug, Clone, PartialEq)]
@@ -42,6 +42,21 @@ pub struct ReportSummary {
     pub discounted_return: f32,
     /// Loss of the training round this report triggered, if any.
     pub trained_loss: Option<f32>,
+}
+
+/// Everything a [`Curriculum`] needs to continue after a restart.
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct CurriculumState {
+    /// The variant it was saved from (a resume with another variant is refused).
+    pub variant: Variant,
+    /// Gate, t_c, sampling RNG.
+    pub scheduler: SchedulerState,
+    /// The task-value net, if the variant has one.
+    pub net: Option<NetState>,
+    /// Training data collected since the last round.
+    pub collected: Vec<([f32; 3], f32)>,
+    /// Episodes reported.
+    pub episodes: u64,
 }
 
 /// Task proposal plus the task-value net and its training data.
@@ -85,6 +100,41 @@ impl Curriculum {
             episodes: 0,
             cfg,
         })
+    }
+
+    /// Episodes reported so far.
+    pub fn episodes(&self) -> u64 {
+        self.episodes
+    }
+
+    /// The state to save with the run's checkpoints.
+    pub fn state(&self) -> Result<CurriculumState> {
+        Ok(CurriculumState {
+            variant: self.cfg.variant,
+            scheduler: self.scheduler.state(),
+            net: self.net.as_ref().map(|n| n.state()).transpose().map_err(|e| CurriculumError::Net(e.to_string()))?,
+            collected: self.collected.clone(),
+            episodes: self.episodes,
+        })
+    }
+
+    /// Continue from a saved state (same variant and net architecture).
+    pub fn restore(&mut self, state: &CurriculumState) -> Result<()> {
+        if state.variant != self.cfg.variant {
+            return Err(CurriculumError::Report(format!(
+                "saved curriculum is {:?}, this run is {:?}",
+                state.variant, self.cfg.variant
+            )));
+        }
+        match (self.net.as_mut(), state.net.as_ref()) {
+            (Some(net), Some(saved)) => net.restore(saved).map_err(|e| CurriculumError::Net(e.to_string()))?,
+            (None, None) => {}
+            _ => return Err(CurriculumError::Report("saved curriculum and this variant disagree on having a net".into())),
+        }
+        self.scheduler.restore(&state.scheduler);
+        self.collected = state.collected.clone();
+        self.episodes = state.episodes;
+        Ok(())
     }
 
     /// Propose the next task.
@@ -190,6 +240,25 @@ mod tests {
         let s = c.report(&episode(Category::Random, vec![-1.0; 4], false)).unwrap();
         assert!(s.trained_loss.is_some_and(f32::is_finite), "Δ_ep = 10 triggers training");
         assert!(c.collected.is_empty(), "the collected set is cleared after training");
+    }
+
+    #[test]
+    fn state_round_trip_continues_identically() {
+        let mut a = curriculum(Variant::NavAclPlusHard);
+        for k in 0..35 {
+            a.report(&episode(Category::First, vec![-0.1; 3 + k % 4], false)).unwrap();
+        }
+        assert!(a.scheduler().in_acl_phase(), "30 good first-task returns open the gate");
+        let saved = a.state().unwrap();
+        let json = serde_json::to_string(&saved).unwrap();
+        let mut b = curriculum(Variant::NavAclPlusHard);
+        b.restore(&serde_json::from_str(&json).unwrap()).unwrap();
+        for _ in 0..3 {
+            assert_eq!(a.propose().unwrap(), b.propose().unwrap());
+        }
+        assert_eq!(a.episodes(), b.episodes());
+        let mut other = curriculum(Variant::NavAcl);
+        assert!(other.restore(&saved).is_err(), "another variant is refused");
     }
 
     #[test]

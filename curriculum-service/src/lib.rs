@@ -27,11 +27,11 @@ pub mod sampler;
 pub mod scheduler;
 
 pub use config::{CurriculumConfig, Variant};
-pub use curriculum::{Curriculum, EpisodeOutcome, ReportSummary};
+pub use curriculum::{Curriculum, CurriculumState, EpisodeOutcome, ReportSummary};
 pub use error::{CurriculumError, Result};
 pub use filter::{Bands, Category, Fit};
 pub use gate::PassFirstTask;
-pub use net::{NetConfig, Target, TaskValueNet};
+pub use net::{NetConfig, NetState, Target, TaskValueNet};
 pub use returns::{discounted_returns, task_features};
 pub use sampler::TaskSampler;
-pub use scheduler::{Proposal, ReturnPredictor, TaskScheduler};
+pub use scheduler::{Proposal, ReturnPredictor, SchedulerState, TaskScheduler};

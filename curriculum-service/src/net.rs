@@ -55,6 +55,7 @@ impl Default for NetConfig {
 /// The MLP and its optimiser.
 pub struct TaskValueNet {
     layers: Vec<Linear>,
+    vars: Vec<Var>,
     opt: AdamW,
     target: Target,
     cfg: NetConfig,
@@ -65,6 +66,15 @@ pub struct TaskValueNet {
 pub fn encode(features: &[[f32; 3]]) -> Tensor {
     let data: Vec<f32> = features.iter().flat_map(|f| [f[0] / 20.0, f[1] / 20.0, f[2].sin(), f[2].cos()]).collect();
     Tensor::from_vec(data, (features.len(), 4), &Device::Cpu).expect("shape matches data")
+}
+
+/// Saved state of a [`TaskValueNet`].
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct NetState {
+    /// Every parameter, flattened, in layer order (weight, bias, …).
+    pub weights: Vec<Vec<f32>>,
+    /// The minibatch-order RNG.
+    pub rng: ChaCha8Rng,
 }
 
 impl TaskValueNet {
@@ -87,8 +97,33 @@ impl TaskValueNet {
             vars.push(weight);
             vars.push(bias);
         }
-        let opt = AdamW::new(vars, ParamsAdamW { lr: cfg.lr, weight_decay: 0.0, ..Default::default() })?;
-        Ok(TaskValueNet { layers, opt, target, cfg, rng })
+        let opt = AdamW::new(vars.clone(), ParamsAdamW { lr: cfg.lr, weight_decay: 0.0, ..Default::default() })?;
+        Ok(TaskValueNet { layers, vars, opt, target, cfg, rng })
+    }
+
+    /// Weights and minibatch RNG, for saving with the run's checkpoints. The
+    /// optimiser's moments are not included (candle-nn keeps them private): a
+    /// resumed net restarts Adam's moments, which for this small MLP re-converge
+    /// within one training round.
+    pub fn state(&self) -> candle_core::Result<NetState> {
+        let weights = self.vars.iter().map(|v| v.as_tensor().flatten_all()?.to_vec1::<f32>()).collect::<candle_core::Result<_>>()?;
+        Ok(NetState { weights, rng: self.rng.clone() })
+    }
+
+    /// Restore what [`TaskValueNet::state`] saved; the shapes must match this net's config.
+    pub fn restore(&mut self, state: &NetState) -> candle_core::Result<()> {
+        if state.weights.len() != self.vars.len() {
+            candle_core::bail!("saved task-value net has {} tensors, this config {}", state.weights.len(), self.vars.len());
+        }
+        for (v, w) in self.vars.iter().zip(&state.weights) {
+            let shape = v.as_tensor().shape().clone();
+            if shape.elem_count() != w.len() {
+                candle_core::bail!("saved tensor of {} values for a {:?} parameter", w.len(), shape);
+            }
+            v.set(&Tensor::from_slice(w, shape, &Device::Cpu)?)?;
+        }
+        self.rng = state.rng.clone();
+        Ok(())
     }
 
     /// Raw output (N,): the return, or the success logit.
@@ -182,5 +217,20 @@ mod tests {
         assert_eq!(a.predict_values(&f).unwrap(), b.predict_values(&f).unwrap());
         let p = a.predict_values(&f).unwrap()[0];
         assert!((0.0..=1.0).contains(&p), "a probability");
+    }
+
+    #[test]
+    fn state_round_trip_restores_predictions_and_rng() {
+        let data: Vec<([f32; 3], f32)> = (0..64).map(|k| ([k as f32 * 0.3, 1.0, 0.0], k as f32 * 0.1)).collect();
+        let mut a = TaskValueNet::new(NetConfig::default(), Target::Return, 1).unwrap();
+        a.train(&data).unwrap();
+        let saved = a.state().unwrap();
+        let mut b = TaskValueNet::new(NetConfig::default(), Target::Return, 99).unwrap();
+        b.restore(&saved).unwrap();
+        let f = [[3.0, -2.0, 1.0]];
+        assert_eq!(a.predict_values(&f).unwrap(), b.predict_values(&f).unwrap());
+        assert_eq!(a.state().unwrap().rng, b.state().unwrap().rng);
+        let mut small = TaskValueNet::new(NetConfig { hidden: vec![8], ..NetConfig::default() }, Target::Return, 0).unwrap();
+        assert!(small.restore(&saved).is_err(), "another architecture is refused");
     }
 }

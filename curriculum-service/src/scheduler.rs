@@ -43,6 +43,17 @@ pub struct Proposal {
     pub fit: Option<Fit>,
 }
 
+/// Saved state of a [`TaskScheduler`].
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct SchedulerState {
+    /// The PassFirstTask gate (its window of returns and whether it opened).
+    pub gate: PassFirstTask,
+    /// Decision steps in the ACL phase.
+    pub t_c: u64,
+    /// The task-sampling RNG.
+    pub rng: ChaCha8Rng,
+}
+
 /// Proposes tasks for one run.
 pub struct TaskScheduler {
     cfg: CurriculumConfig,
@@ -89,6 +100,18 @@ impl TaskScheduler {
     /// The PassFirstTask gate.
     pub fn gate(&self) -> &PassFirstTask {
         &self.gate
+    }
+
+    /// What must survive a restart: the gate's window, t_c and the RNG.
+    pub fn state(&self) -> SchedulerState {
+        SchedulerState { gate: self.gate.clone(), t_c: self.t_c, rng: self.rng.clone() }
+    }
+
+    /// Continue from a saved [`SchedulerState`].
+    pub fn restore(&mut self, state: &SchedulerState) {
+        self.gate = state.gate.clone();
+        self.t_c = state.t_c;
+        self.rng = state.rng.clone();
     }
 
     /// Propose the next task.

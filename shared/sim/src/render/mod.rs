@@ -647,6 +647,20 @@ impl Frames<'_> {
         }
     }
 
+    /// Copy view `i` into uninitialised memory (a loaned shared-memory sample, say),
+    /// initialising all `image_size²` bytes of `dst`.
+    pub fn copy_frame_uninit(&self, i: usize, dst: &mut [std::mem::MaybeUninit<u8>]) {
+        let size = self.image_size() as usize;
+        assert_eq!(dst.len(), size * size, "destination must hold one {size}×{size} frame");
+        for (row, chunk) in dst.chunks_exact_mut(size).enumerate() {
+            let src = self.row(i, row as u32);
+            // SAFETY: `chunk` and `src` are `size` bytes each and cannot overlap
+            // (one is mapped GPU memory, the other the caller's buffer); u8 has no
+            // invalid bit patterns, so writing initialises the chunk.
+            unsafe { std::ptr::copy_nonoverlapping(src.as_ptr(), chunk.as_mut_ptr().cast::<u8>(), size) };
+        }
+    }
+
     /// View `i` as a new vector.
     pub fn frame(&self, i: usize) -> Vec<u8> {
         let size = self.image_size() as usize;

@@ -1,0 +1,293 @@
+//! The run configuration: one TOML file holds everything every process needs,
+//! and the resolved copy in the run directory is what all processes read.
+//!
+//! Invariant: [`RunConfig::validate`] is the single gate — a config that passes
+//! can be built by every process (same image size, history, observation kind and
+//! network sizes everywhere); one that fails names the file, the dotted field and
+//! the value, before any process starts.
+
+use std::path::{Path, PathBuf};
+
+use pednav_curriculum::CurriculumConfig;
+use pednav_learner::{DsacConfig, ReplayConfig};
+use pednav_nets::{EncoderKind, NetsConfig};
+use pednav_sim::{ObsMode, STATE_OBS_DIM, Scene, SimConfig};
+use serde::{Deserialize, Serialize};
+
+use crate::error::{Result, RuntimeError};
+
+/// How actors choose actions.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[serde(rename_all = "snake_case")]
+pub enum ActorPolicy {
+    /// Sample from the newest policy the learner published (training).
+    #[default]
+    Learned,
+    /// Uniform random actions in [−1, 1]³ (the random-walk baseline, throughput benchmarks).
+    Random,
+}
+
+/// Settings of the distributed runtime (processes, IPC, cadence of outputs).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct RuntimeConfig {
+    /// Simulator instances per actor process (stepped and rendered as one batch).
+    pub envs_per_actor: usize,
+    /// How actors choose actions.
+    pub policy: ActorPolicy,
+    /// Publish the policy weights every this many updates (K).
+    pub weights_every: u64,
+    /// Write a learner checkpoint every this many updates (and on stop).
+    pub checkpoint_every_updates: u64,
+    /// Also write a learner checkpoint when this many seconds passed since the last.
+    pub checkpoint_every_secs: f64,
+    /// Save the curriculum state every this many episode reports (and on stop).
+    pub curriculum_save_every_episodes: u64,
+    /// Write a metrics row (CSV + TensorBoard) every this many seconds.
+    pub metrics_every_secs: f64,
+    /// Step records the learner's subscriber buffers before actors wait.
+    pub step_buffer: usize,
+    /// Seconds a lossless publisher (steps, episode reports) keeps retrying a full
+    /// receiver before it gives up and the process exits with an error.
+    pub give_up_secs: f64,
+    /// Seconds an actor waits for the curriculum service to answer a task request.
+    pub task_timeout_secs: f64,
+    /// Stop the run after this many learner updates (0: run until stopped).
+    pub max_updates: u64,
+    /// Stop the run after this many env steps received by the learner (0: until stopped).
+    pub max_env_steps: u64,
+}
+
+impl Default for RuntimeConfig {
+    fn default() -> Self {
+        RuntimeConfig {
+            envs_per_actor: 4,
+            policy: ActorPolicy::Learned,
+            weights_every: 10,
+            checkpoint_every_updates: 5000,
+            checkpoint_every_secs: 900.0,
+            curriculum_save_every_episodes: 100,
+            metrics_every_secs: 10.0,
+            step_buffer: 2048,
+            give_up_secs: 600.0,
+            task_timeout_secs: 120.0,
+            max_updates: 0,
+            max_env_steps: 0,
+        }
+    }
+}
+
+/// Everything a run needs; `config.toml` in the run directory.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct RunConfig {
+    /// Seed of the run: every process derives its own seed from it (actor k: seed ⊕ k).
+    pub seed: u64,
+    /// Scene file (TOML); absent: the built-in reference corner.
+    pub scene: Option<PathBuf>,
+    /// Simulator.
+    pub sim: SimConfig,
+    /// Networks.
+    pub nets: NetsConfig,
+    /// DSAC hyper-parameters (Table IV).
+    pub dsac: DsacConfig,
+    /// Dual replay capacities.
+    pub replay: ReplayConfig,
+    /// Curriculum variant and constants.
+    pub curriculum: CurriculumConfig,
+    /// Processes and IPC.
+    pub runtime: RuntimeConfig,
+}
+
+impl Default for RunConfig {
+    fn default() -> Self {
+        RunConfig {
+            seed: 0,
+            scene: None,
+            sim: SimConfig::default(),
+            nets: NetsConfig::default(),
+            dsac: DsacConfig::default(),
+            replay: ReplayConfig::default(),
+            curriculum: CurriculumConfig::default(),
+            runtime: RuntimeConfig::default(),
+        }
+    }
+}
+
+impl RunConfig {
+    /// Read and validate a config file; relative scene paths resolve against the file's folder.
+    pub fn load(path: &Path) -> Result<RunConfig> {
+        let text = std::fs::read_to_string(path).map_err(|e| RuntimeError::file(path, format!("cannot read: {e}")))?;
+        let mut cfg: RunConfig =
+            toml::from_str(&text).map_err(|e| RuntimeError::file(path, format!("not a valid run config: {e}")))?;
+        if let Some(scene) = cfg.scene.as_mut().filter(|s| s.is_relative()) {
+            let base = path.parent().unwrap_or(Path::new("."));
+            let candidate = base.join(&*scene);
+            if candidate.exists() || !scene.exists() {
+                *scene = candidate;
+            }
+        }
+        cfg.validate(&path.display().to_string())?;
+        Ok(cfg)
+    }
+
+    /// The config as TOML (what the run directory keeps).
+    pub fn to_toml(&self) -> String {
+        toml::to_string_pretty(self).expect("a run config always serialises")
+    }
+
+    /// The scene of the run.
+    pub fn scene(&self) -> Result<Scene> {
+        Scene::load_or_reference(self.scene.as_deref()).map_err(|e| {
+            RuntimeError::file(self.scene.clone().unwrap_or_else(|| "reference scene".into()), e)
+        })
+    }
+
+    /// Check every section and their consistency; `file` names the source in errors.
+    pub fn validate(&self, file: &str) -> Result<()> {
+        let bad = |field: &str, value: String, message: &str| {
+            Err(RuntimeError::Config {
+                file: file.to_string(),
+                field: field.to_string(),
+                value,
+                message: message.to_string(),
+            })
+        };
+        let section = |name: &str, e: String| RuntimeError::Config {
+            file: file.to_string(),
+            field: name.to_string(),
+            value: String::new(),
+            message: e,
+        };
+        self.sim.validate().map_err(|e| section("sim", e.to_string()))?;
+        self.nets.validate().map_err(|e| section("nets", e.to_string()))?;
+        self.dsac.validate().map_err(|e| section("dsac", e.to_string()))?;
+        self.curriculum.validate().map_err(|e| section("curriculum", e.to_string()))?;
+        self.scene()?;
+        match self.sim.obs_mode {
+            ObsMode::Pixels => {
+                if self.nets.encoder == EncoderKind::Mlp {
+                    return bad("nets.encoder", "\"mlp\"".into(), "pixel observations need \"tcn\" or \"frame_stack\"");
+                }
+                if self.nets.image_size != self.sim.image_size as usize {
+                    return bad(
+                        "nets.image_size",
+                        self.nets.image_size.to_string(),
+                        &format!("must equal sim.image_size = {}", self.sim.image_size),
+                    );
+                }
+            }
+            ObsMode::StateDebug => {
+                if self.nets.encoder != EncoderKind::Mlp {
+                    return bad("nets.encoder", format!("{:?}", self.nets.encoder), "state observations need \"mlp\"");
+                }
+                if self.nets.state_dim != STATE_OBS_DIM {
+                    return bad(
+                        "nets.state_dim",
+                        self.nets.state_dim.to_string(),
+                        &format!("the simulator's state observation has {STATE_OBS_DIM} values"),
+                    );
+                }
+            }
+        }
+        let r = &self.runtime;
+        if r.envs_per_actor == 0 || r.envs_per_actor > 4096 {
+            return bad("runtime.envs_per_actor", r.envs_per_actor.to_string(), "must be 1 … 4096");
+        }
+        if r.weights_every == 0 {
+            return bad("runtime.weights_every", "0".into(), "must be at least 1");
+        }
+        if r.checkpoint_every_updates == 0 {
+            return bad("runtime.checkpoint_every_updates", "0".into(), "must be at least 1");
+        }
+        if r.curriculum_save_every_episodes == 0 {
+            return bad("runtime.curriculum_save_every_episodes", "0".into(), "must be at least 1");
+        }
+        for (field, v) in [
+            ("runtime.checkpoint_every_secs", r.checkpoint_every_secs),
+            ("runtime.metrics_every_secs", r.metrics_every_secs),
+            ("runtime.give_up_secs", r.give_up_secs),
+            ("runtime.task_timeout_secs", r.task_timeout_secs),
+        ] {
+            if !(v.is_finite() && v > 0.0) {
+                return bad(field, v.to_string(), "must be a positive number of seconds");
+            }
+        }
+        if r.step_buffer < 16 {
+            return bad("runtime.step_buffer", r.step_buffer.to_string(), "must be at least 16 records");
+        }
+        let (nt, t) = (self.replay.nonterminal_capacity, self.replay.terminal_capacity);
+        if nt < self.dsac.batch_size || t == 0 {
+            return bad(
+                "replay.nonterminal_capacity",
+                nt.to_string(),
+                &format!("must hold at least one batch ({}), and terminal_capacity ≥ 1", self.dsac.batch_size),
+            );
+        }
+        if (self.dsac.warmup as usize) < self.dsac.batch_size {
+            return bad(
+                "dsac.warmup",
+                self.dsac.warmup.to_string(),
+                &format!("must be at least dsac.batch_size = {}", self.dsac.batch_size),
+            );
+        }
+        if self.dsac.warmup as usize > nt {
+            return bad(
+                "dsac.warmup",
+                self.dsac.warmup.to_string(),
+                &format!("cannot exceed replay.nonterminal_capacity = {nt} (the learner would never start)"),
+            );
+        }
+        if (self.dsac.gamma as f32 - self.curriculum.gamma).abs() > 1e-6 {
+            return bad(
+                "curriculum.gamma",
+                self.curriculum.gamma.to_string(),
+                &format!("must equal dsac.gamma = {} (the curriculum predicts the agent's returns)", self.dsac.gamma),
+            );
+        }
+        Ok(())
+    }
+
+    /// Bytes of one observation record (frame or state vector).
+    pub fn observation_bytes(&self) -> usize {
+        match self.sim.obs_mode {
+            ObsMode::Pixels => (self.sim.image_size * self.sim.image_size) as usize,
+            ObsMode::StateDebug => STATE_OBS_DIM * 4,
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn defaults_are_valid_and_round_trip_through_toml() {
+        let cfg = RunConfig::default();
+        cfg.validate("defaults").unwrap();
+        let back: RunConfig = toml::from_str(&cfg.to_toml()).unwrap();
+        assert_eq!(back, cfg);
+    }
+
+    #[test]
+    fn errors_name_the_field_and_value() {
+        let mut cfg = RunConfig::default();
+        cfg.nets.image_size = 42;
+        let e = cfg.validate("x.toml").unwrap_err().to_string();
+        assert!(e.contains("x.toml") && e.contains("nets.image_size") && e.contains("42"), "{e}");
+        let mut cfg = RunConfig::default();
+        cfg.runtime.envs_per_actor = 0;
+        let e = cfg.validate("x.toml").unwrap_err().to_string();
+        assert!(e.contains("runtime.envs_per_actor"), "{e}");
+        let mut cfg = RunConfig::default();
+        cfg.dsac.warmup = 10;
+        assert!(cfg.validate("x").unwrap_err().to_string().contains("dsac.warmup"));
+    }
+
+    #[test]
+    fn unknown_fields_and_variants_are_rejected() {
+        assert!(toml::from_str::<RunConfig>("[runtime]\nenvs = 3\n").is_err());
+        let e = toml::from_str::<RunConfig>("[curriculum]\nvariant = \"navacl_plus_sideways\"\n").unwrap_err();
+        assert!(e.to_string().contains("variant"), "{e}");
+    }
+}

@@ -1,0 +1,43 @@
+//! Errors of the runtime library.
+
+use std::path::PathBuf;
+
+/// What can go wrong setting up or running a pednav process.
+#[derive(Debug, thiserror::Error)]
+pub enum RuntimeError {
+    /// A configuration value is out of range or inconsistent.
+    #[error("config {file}: `{field}` = {value}: {message}")]
+    Config {
+        /// The config file (or "defaults").
+        file: String,
+        /// The offending field, dotted (`runtime.envs_per_actor`).
+        field: String,
+        /// Its value.
+        value: String,
+        /// What is wrong and how to fix it.
+        message: String,
+    },
+    /// A file could not be read, parsed or written.
+    #[error("{path}: {message}")]
+    File {
+        /// The file.
+        path: PathBuf,
+        /// What happened.
+        message: String,
+    },
+    /// An iceoryx2 operation failed.
+    #[error("iceoryx2: {0}")]
+    Ipc(String),
+    /// A message did not match what the receiver expected.
+    #[error("bad message: {0}")]
+    Message(String),
+}
+
+/// Result with [`RuntimeError`].
+pub type Result<T> = std::result::Result<T, RuntimeError>;
+
+impl RuntimeError {
+    pub(crate) fn file(path: impl Into<PathBuf>, message: impl std::fmt::Display) -> RuntimeError {
+        RuntimeError::File { path: path.into(), message: message.to_string() }
+    }
+}

@@ -1,0 +1,68 @@
+//! # pednav-runtime — what every pednav process shares at run time
+//!
+//! - [`messages`]: the `#[repr(C)]`, zero-copy message types;
+//! - [`ipc`]: the run's iceoryx2 services, opened identically everywhere, under a
+//!   per-run prefix;
+//! - [`config`]: the run configuration and its single validation gate;
+//! - [`rundir`]: the run directory layout (resume, never overwrite);
+//! - [`metrics`]: CSV + TensorBoard scalars;
+//! - [`weights`]: the flat weights message;
+//! - [`signal`]: Ctrl-C / SIGTERM as a flag.
+
+#![warn(missing_docs)]
+
+pub mod config;
+pub mod error;
+pub mod ipc;
+pub mod messages;
+pub mod metrics;
+pub mod rundir;
+pub mod signal;
+pub mod weights;
+
+pub use config::{ActorPolicy, RunConfig, RuntimeConfig};
+pub use error::{Result, RuntimeError};
+pub use ipc::{Ipc, run_prefix};
+pub use metrics::{Metrics, TbWriter};
+pub use rundir::RunDir;
+pub use signal::StopFlag;
+
+use pednav_curriculum::Category;
+
+/// Wire code of a curriculum category.
+pub fn category_code(c: Category) -> u32 {
+    match c {
+        Category::First => 0,
+        Category::Fixed => 1,
+        Category::Easy => 2,
+        Category::Frontier => 3,
+        Category::Random => 4,
+        Category::Hard => 5,
+    }
+}
+
+/// The category of a wire code.
+pub fn category_of(code: u32) -> Result<Category> {
+    Ok(match code {
+        0 => Category::First,
+        1 => Category::Fixed,
+        2 => Category::Easy,
+        3 => Category::Frontier,
+        4 => Category::Random,
+        5 => Category::Hard,
+        other => return Err(RuntimeError::Message(format!("unknown category code {other}"))),
+    })
+}
+
+/// Set up `tracing` for a process: human-readable lines on stderr (the launcher
+/// sends them to `logs/<process>.log`), level from `RUST_LOG` (default info).
+pub fn init_logging() {
+    let filter = tracing_subscriber::EnvFilter::try_from_default_env()
+        .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("info"));
+    let _ = tracing_subscriber::fmt().with_env_filter(filter).with_target(false).with_ansi(std::io::IsTerminal::is_terminal(&std::io::stderr())).with_writer(std::io::stderr).try_init();
+}
+
+/// Nanoseconds since the Unix epoch.
+pub fn now_ns() -> u64 {
+    std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map(|d| d.as_nanos() as u64).unwrap_or(0)
+}

@@ -1,0 +1,174 @@
+//! Message types of the pednav services, defined once for every process.
+//!
+//! Invariant: every type here is `#[repr(C)]`, holds no pointers and is
+//! [`ZeroCopySend`], so it can live in iceoryx2 shared memory and be read by
+//! another process built from the same source. Variable-length data (a frame,
+//! an episode's steps, the weights) travels as the slice payload of a service
+//! whose user header is one of these types.
+
+use iceoryx2::prelude::ZeroCopySend;
+
+/// Flag bits of [`StepHeader::flags`].
+pub mod step_flags {
+    /// First step of an episode: the frame is the reset observation; action and reward are unused.
+    pub const FIRST: u32 = 1;
+    /// The goal was reached with this step (no bootstrapping).
+    pub const TERMINAL: u32 = 2;
+    /// The episode hit T_max with this step (bootstrapping).
+    pub const TRUNCATED: u32 = 4;
+    /// The agent collided during this step.
+    pub const COLLIDED: u32 = 8;
+}
+
+/// Header of one step record; the payload is the new observation (an
+/// `image_size²` u8 frame, or the f32 state vector as bytes in state mode),
+/// written by the actor straight into the loaned shared-memory sample.
+#[repr(C)]
+#[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend)]
+pub struct StepHeader {
+    /// Actor id (0 … actors−1).
+    pub actor: u32,
+    /// Environment index within the actor.
+    pub env: u32,
+    /// Incarnation of the actor process (its start counter), so a restarted actor's
+    /// streams never splice into the dead one's.
+    pub incarnation: u32,
+    /// [`step_flags`] bits.
+    pub flags: u32,
+    /// Episode id, unique per (actor, env, incarnation).
+    pub episode: u64,
+    /// Step index within the episode (0 for the reset observation).
+    pub step: u32,
+    /// Reward of the step that led to this observation.
+    pub reward: f32,
+    /// Action that led to this observation.
+    pub action: [f32; 3],
+    /// Weights version the action was computed with (0: the initial weights).
+    pub policy_version: u64,
+    /// Running sequence number of records sent by this actor incarnation.
+    pub seq: u64,
+}
+
+impl StepHeader {
+    /// Is a flag bit set?
+    pub fn has(&self, flag: u32) -> bool {
+        self.flags & flag != 0
+    }
+
+    /// The replay stream this record belongs to: one per (actor, env, incarnation).
+    pub fn stream(&self) -> u64 {
+        ((self.actor as u64) << 40) | ((self.incarnation as u64 & 0xFF_FFFF) << 16) | (self.env as u64 & 0xFFFF)
+    }
+}
+
+/// Header of an episode report; the payload is the episode's T+1 [`EpisodePoint`]s
+/// (pose s_t and the reward r_t that led there; r_0 = 0).
+#[repr(C)]
+#[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend)]
+pub struct EpisodeHeader {
+    /// Actor id.
+    pub actor: u32,
+    /// Environment index within the actor.
+    pub env: u32,
+    /// Task id handed out by the curriculum service.
+    pub task_id: u64,
+    /// Curriculum category code of the task ([`crate::category_code`]).
+    pub category: u32,
+    /// 1 when the goal was reached.
+    pub success: u32,
+    /// 1 when the episode hit T_max (returns are bootstrapped).
+    pub truncated: u32,
+    /// Decision steps T.
+    pub length: u32,
+    /// Discounted return from the start, Σ γ^k r_{k+1}, as the actor computed it.
+    pub discounted_return: f32,
+    /// Undiscounted sum of rewards.
+    pub total_reward: f32,
+}
+
+/// One point of an episode: the pose reached and the reward of the step that led there.
+#[repr(C)]
+#[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend)]
+pub struct EpisodePoint {
+    /// x, metres.
+    pub x: f32,
+    /// y, metres.
+    pub y: f32,
+    /// Body yaw, radians.
+    pub yaw: f32,
+    /// Reward of the step into this pose (0 for s_0).
+    pub reward: f32,
+}
+
+/// An actor's request for the next task of one environment.
+#[repr(C)]
+#[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend)]
+pub struct TaskRequest {
+    /// Actor id.
+    pub actor: u32,
+    /// Environment index within the actor.
+    pub env: u32,
+}
+
+/// The curriculum service's answer: a start pose, its category and an id.
+#[repr(C)]
+#[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend)]
+pub struct TaskResponse {
+    /// Start x, metres.
+    pub x: f32,
+    /// Start y, metres.
+    pub y: f32,
+    /// Start yaw, radians.
+    pub yaw: f32,
+    /// Category code ([`crate::category_code`]).
+    pub category: u32,
+    /// Task id, unique within the run.
+    pub task_id: u64,
+}
+
+/// Header of a weights broadcast; the payload is every parameter of the acting
+/// networks flattened in [`crate::weights`] order.
+#[repr(C)]
+#[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend)]
+pub struct WeightsHeader {
+    /// Monotone version (the learner's update count when published).
+    pub version: u64,
+    /// Number of f32 values in the payload.
+    pub len: u64,
+    /// Learner clock when published (ns since the Unix epoch), for latency measurements.
+    pub published_ns: u64,
+}
+
+/// Kind of process a [`Heartbeat`] comes from.
+pub mod process_kind {
+    /// An actor.
+    pub const ACTOR: u32 = 1;
+    /// The learner.
+    pub const LEARNER: u32 = 2;
+    /// The curriculum service.
+    pub const CURRICULUM: u32 = 3;
+}
+
+/// Periodic liveness and progress of one process (for the launcher's progress line and logs).
+#[repr(C)]
+#[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend)]
+pub struct Heartbeat {
+    /// [`process_kind`] code.
+    pub kind: u32,
+    /// Actor id (0 for the others).
+    pub id: u32,
+    /// Process id.
+    pub pid: u32,
+    /// Curriculum phase: 0 first task, 1 ACL (curriculum only).
+    pub phase: u32,
+    /// Env steps: sent (actor), received (learner), t_c (curriculum).
+    pub steps: u64,
+    /// Episodes finished (actor, curriculum) or updates done (learner).
+    pub count: u64,
+    /// Weights version in use (actor) or published (learner).
+    pub version: u64,
+    /// Mean discounted return of recent episodes.
+    pub recent_return: f32,
+    /// Steps per second over the last interval.
+    pub rate: f32,
+}

@@ -1,0 +1,200 @@
+//! The distributed runtime end to end, with real processes started the way a
+//! user starts them (`deploy/run_local.sh`): one actor, the learner and the
+//! curriculum service on the reduced smoke config.
+//!
+//! Checks: every step the actor sent reached the learner (count and checksum
+//! per actor incarnation, no sequence gaps); weights the learner published
+//! reached the actor and were used; tasks came from the curriculum service; an
+//! actor killed with SIGKILL is replaced and training continues; a stop writes a
+//! final checkpoint and a restart resumes from it. Only watchdogs — no timing
+//! assertions.
+
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Stdio};
+use std::time::{Duration, Instant};
+
+use pednav_tests::{binary, scratch_dir, workspace_root};
+use serde_json::Value;
+
+const WATCHDOG: Duration = Duration::from_secs(600);
+
+fn bin_dir() -> PathBuf {
+    let bins = [
+        ("pednav-runtime", "shared/runtime", "pednav-run"),
+        ("pednav-actor", "actor", "pednav-actor"),
+        ("pednav-learner-process", "learner/process", "pednav-learner"),
+        ("pednav-curriculum-service", "curriculum-service/process", "pednav-curriculum"),
+    ];
+    let paths: Vec<PathBuf> = bins.iter().map(|(p, d, b)| binary(p, d, b)).collect();
+    paths[0].parent().unwrap().to_path_buf()
+}
+
+fn run_local(run_dir: &Path, extra: &[&str]) -> Child {
+    let mut args = vec!["--actors", "1", "--run-dir", run_dir.to_str().unwrap()];
+    args.extend_from_slice(extra);
+    Command::new(workspace_root().join("deploy/run_local.sh"))
+        .args(&args)
+        .env("PEDNAV_SKIP_BUILD", "1")
+        .env("PEDNAV_BIN_DIR", bin_dir())
+        .stdin(Stdio::null())
+        .stdout(Stdio::null())
+        .stderr(std::fs::File::create(run_dir.with_extension(format!("launcher{}.log", extra.len()))).unwrap())
+        .spawn()
+        .expect("start deploy/run_local.sh")
+}
+
+fn stats(run_dir: &Path, name: &str) -> Option<Value> {
+    let text = std::fs::read_to_string(run_dir.join("stats").join(format!("{name}.json"))).ok()?;
+    serde_json::from_str(&text).ok()
+}
+
+fn num(v: &Value, key: &str) -> u64 {
+    v.get(key).and_then(Value::as_u64).unwrap_or_else(|| panic!("`{key}` missing in {v}"))
+}
+
+/// Wait until `cond` holds, failing with `what` and the logs after the watchdog.
+fn wait_for<T>(run_dir: &Path, what: &str, mut cond: impl FnMut() -> Option<T>) -> T {
+    let start = Instant::now();
+    loop {
+        if let Some(v) = cond() {
+            return v;
+        }
+        if start.elapsed() > WATCHDOG {
+            let mut logs = String::new();
+            for name in ["learner", "curriculum", "actor-0"] {
+                let text = std::fs::read_to_string(run_dir.join("logs").join(format!("{name}.log"))).unwrap_or_default();
+                let tail: Vec<&str> = text.lines().rev().take(15).collect();
+                logs += &format!("\n--- {name}.log (last lines, newest first)\n{}", tail.join("\n"));
+            }
+            panic!("watchdog: {what} did not happen within {WATCHDOG:?}{logs}");
+        }
+        std::thread::sleep(Duration::from_millis(200));
+    }
+}
+
+fn stop(child: &mut Child, run_dir: &Path) {
+    // SAFETY: signalling our own child.
+    unsafe { libc::kill(child.id() as i32, libc::SIGTERM) };
+    let status = wait_for(run_dir, "the run stopping after SIGTERM", || child.try_wait().unwrap());
+    assert!(status.success(), "run_local.sh exited with {status} after SIGTERM");
+}
+
+#[test]
+fn actor_learner_curriculum_run_restart_and_resume() {
+    let root = scratch_dir("runtime");
+    let run_dir = root.join("run");
+    let config = workspace_root().join("deploy/configs/smoke.toml");
+    let mut run = run_local(&run_dir, &["--config", config.to_str().unwrap()]);
+
+    // Phase 1: training with weight broadcasts.
+    let first_actor = wait_for(&run_dir, "the actor acting with published weights", || {
+        let live = stats(&run_dir, "actor-0.live")?;
+        (live.get("last_policy_version")?.as_u64()? >= 10).then_some(live)
+    });
+    assert_eq!(num(&first_actor, "incarnation"), 1);
+
+    // Phase 2: SIGKILL the actor; the launcher must replace it and training must go on.
+    let killed_pid = num(&first_actor, "pid") as i32;
+    // SAFETY: the pid is the actor process our run started.
+    unsafe { libc::kill(killed_pid, libc::SIGKILL) };
+    let updates_at_kill = num(&stats(&run_dir, "learner").unwrap(), "updates");
+    wait_for(&run_dir, "a replacement actor sending steps", || {
+        let live = stats(&run_dir, "actor-0.live")?;
+        (live.get("incarnation")?.as_u64()? == 2 && live.get("steps_sent")?.as_u64()? > 200).then_some(())
+    });
+    wait_for(&run_dir, "training continuing after the actor was replaced", || {
+        (num(&stats(&run_dir, "learner")?, "updates") > updates_at_kill + 50).then_some(())
+    });
+    stop(&mut run, &run_dir);
+
+    // Every step of the replacement actor reached the learner, bit for bit.
+    let actor = stats(&run_dir, "actor-0.2").expect("the replacement actor wrote its final stats");
+    let learner = stats(&run_dir, "learner").unwrap();
+    assert_eq!(learner["status"], "stopped");
+    let streams = learner["streams"].as_array().unwrap();
+    let tally = streams
+        .iter()
+        .find(|s| s["actor"] == 0 && s["incarnation"] == 2)
+        .expect("the learner saw the replacement actor's stream");
+    assert_eq!(num(tally, "records"), num(&actor, "steps_sent"), "learner records vs actor sends");
+    assert_eq!(num(tally, "checksum"), num(&actor, "checksum"), "frame checksum");
+    for s in streams {
+        assert_eq!(num(s, "gaps"), 0, "no sequence gaps in {s}");
+    }
+    // The weights the actor used came from the learner's broadcasts (version = update count).
+    let used = num(&actor, "last_policy_version");
+    assert!(used > 0 && used % 5 == 0 && used <= num(&learner, "updates"), "actor used version {used}");
+    // Tasks came from the curriculum service.
+    let curriculum = stats(&run_dir, "curriculum").expect("curriculum stats");
+    assert!(num(&actor, "tasks_received") >= 2, "{actor}");
+    assert!(num(&actor, "last_task_id") <= num(&curriculum, "tasks_issued"));
+    assert!(num(&curriculum, "episodes") >= num(&actor, "episodes"), "{curriculum} vs {actor}");
+    let checkpointed = num(&learner, "updates");
+    assert!(run_dir.join("checkpoints/learner/state.json").exists() && run_dir.join("checkpoints/curriculum.json").exists());
+
+    // Phase 3: restart into the same run directory resumes all processes.
+    let mut run = run_local(&run_dir, &[]);
+    let resumed = wait_for(&run_dir, "the resumed learner updating again", || {
+        let l = stats(&run_dir, "learner")?;
+        (l.get("resumed_from_update")?.as_u64()? == checkpointed && num(&l, "updates") > checkpointed + 10).then_some(l)
+    });
+    assert!(num(&resumed, "updates") > checkpointed);
+    let log = std::fs::read_to_string(run_dir.join("logs/curriculum.log")).unwrap();
+    assert!(log.contains("resumed curriculum state"), "the curriculum service resumed");
+    stop(&mut run, &run_dir);
+    let after = stats(&run_dir, "curriculum").unwrap();
+    assert!(num(&after, "episodes") >= num(&curriculum, "episodes"), "curriculum counters carried over");
+}
+
+#[test]
+fn a_bad_config_stops_before_any_process_starts() {
+    let root = scratch_dir("runtime-bad-config");
+    let bad = root.join("bad.toml");
+    std::fs::write(&bad, "[runtime]\nenvs_per_actor = 0\n").unwrap();
+    let run_dir = root.join("run");
+    let out = Command::new(workspace_root().join("deploy/run_local.sh"))
+        .args(["--actors", "1", "--config", bad.to_str().unwrap(), "--run-dir", run_dir.to_str().unwrap()])
+        .env("PEDNAV_SKIP_BUILD", "1")
+        .env("PEDNAV_BIN_DIR", bin_dir())
+        .output()
+        .unwrap();
+    assert!(!out.status.success());
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(err.contains("runtime.envs_per_actor") && err.contains("bad.toml"), "{err}");
+    assert!(!run_dir.exists(), "nothing was created");
+
+    std::fs::write(&bad, "[curriculum]\nvariant = \"navacl_sideways\"\n").unwrap();
+    let out = Command::new(bin_dir().join("pednav-run")).args(["check", bad.to_str().unwrap()]).output().unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success() && err.contains("variant") && err.contains("navacl_sideways"), "{err}");
+}
+
+#[test]
+fn two_runs_side_by_side_do_not_interfere_and_stop_at_their_budget() {
+    let root = scratch_dir("runtime-side-by-side");
+    let smoke = std::fs::read_to_string(workspace_root().join("deploy/configs/smoke.toml")).unwrap();
+    assert!(smoke.trim_end().ends_with("task_timeout_secs = 60.0"), "[runtime] is the smoke config's last table");
+    let runs: Vec<(PathBuf, Child)> = [(11, 40), (12, 60)]
+        .iter()
+        .map(|&(seed, max_updates)| {
+            let config = root.join(format!("seed{seed}.toml"));
+            std::fs::write(&config, format!("{smoke}max_updates = {max_updates}\n").replace("seed = 7", &format!("seed = {seed}")))
+                .unwrap();
+            let run_dir = root.join(format!("run{seed}"));
+            let child = run_local(&run_dir, &["--config", config.to_str().unwrap()]);
+            (run_dir, child)
+        })
+        .collect();
+    for ((run_dir, mut child), max_updates) in runs.into_iter().zip([40, 60]) {
+        let status = wait_for(&run_dir, "the run stopping at its update budget", || child.try_wait().unwrap());
+        assert!(status.success(), "{} exited with {status}", run_dir.display());
+        let learner = stats(&run_dir, "learner").unwrap();
+        assert_eq!(learner["status"], "max_updates");
+        assert_eq!(num(&learner, "updates"), max_updates, "each run kept its own budget");
+        let actor = stats(&run_dir, "actor-0.1").expect("the actor's final stats");
+        let streams = learner["streams"].as_array().unwrap();
+        assert_eq!(streams.len(), 1, "only this run's actor reached this learner: {streams:?}");
+        assert_eq!(num(&streams[0], "records"), num(&actor, "steps_sent"));
+        assert_eq!(num(&streams[0], "checksum"), num(&actor, "checksum"));
+    }
+}
