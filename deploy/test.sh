@@ -6,4 +6,6 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 export CARGO_BUILD_JOBS="${CARGO_BUILD_JOBS:-2}"
 ./deploy/setup_system.sh
+# The process binaries first: the end-to-end tests start them as a user would.
+cargo build --release --workspace --locked --bins
 cargo test --release --workspace --locked "$@"

@@ -4,11 +4,15 @@
 //! tasks near the goal, and easy tasks must lie nearer than frontier tasks in every
 //! phase of skill.
 //!
-//! Not asserted (measured, see the issue note): the bands' outward movement with
-//! skill. With this agent the frontier moves from ≈13 m to ≈15 m once and then
-//! stays; the easy band (f > μ + σ, relative) contracts to the nearest tasks once
-//! most of the region is mastered, because a competent agent's return still falls
-//! with distance.
+//! Outward movement: the frontier band's mean distance rises with skill (measured
+//! 14.8 → 15.0 → 15.5 → 16.0 m over the four skill windows; asserted: never
+//! falls by more than 0.2 m between windows and rises ≥ 0.5 m overall). The easy
+//! band does *not* move outward with this agent, by construction of NavACL⁺'s
+//! relative threshold: easy is f > μ + σ, the top tail of predicted returns, and
+//! a competent agent's return still falls with distance (fewer steps to the goal),
+//! so once more than that tail is reachable the easy band is the nearest tasks
+//! (measured 6.5 → 3.4 m). What is asserted for it: it starts near the goal and
+//! stays nearer than the frontier.
 
 use pednav_curriculum::{Category, Curriculum, CurriculumConfig, EpisodeOutcome, Variant};
 use pednav_sim::{Pose, Scene};
@@ -85,6 +89,7 @@ fn navacl_plus_moves_from_the_first_task_to_outward_moving_easy_tasks() {
         v.iter().copied().filter(|&(e, _)| (lo..hi).contains(&skill_at(e))).collect()
     };
     let windows = [(7.0, 11.0), (11.0, 15.0), (15.0, 20.0), (20.0, 25.0)];
+    let mut frontier_means = Vec::new();
     for (lo, hi) in windows {
         let (e, f, a) = (window(&easy, lo, hi), window(&frontier, lo, hi), window(&all, lo, hi));
         eprintln!(
@@ -98,7 +103,15 @@ fn navacl_plus_moves_from_the_first_task_to_outward_moving_easy_tasks() {
         );
         assert!(e.len() >= 20 && f.len() >= 20, "both bands are used in every phase");
         assert!(mean(&e) + 3.0 < mean(&f), "easy tasks lie nearer the goal than frontier tasks");
+        frontier_means.push(mean(&f));
     }
+    for w in frontier_means.windows(2) {
+        assert!(w[1] > w[0] - 0.2, "the frontier does not move inward as skill grows: {frontier_means:?}");
+    }
+    assert!(
+        frontier_means[3] >= frontier_means[0] + 0.5,
+        "the frontier moves outward as skill grows: {frontier_means:?}"
+    );
     // At the start of the ACL phase easy tasks are the goal's neighbourhood.
     let first = window(&all, 0.0, 11.0);
     let first_easy = window(&easy, 0.0, 11.0);

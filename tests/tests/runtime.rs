@@ -132,6 +132,19 @@ fn actor_learner_curriculum_run_restart_and_resume() {
     let checkpointed = num(&learner, "updates");
     assert!(run_dir.join("checkpoints/learner/state.json").exists() && run_dir.join("checkpoints/curriculum.json").exists());
 
+    // The Fig. 4-style classification from the saved curriculum state.
+    let png = root.join("curriculum.png");
+    let out = Command::new(bin_dir().join("pednav-curriculum"))
+        .args(["draw", "--run-dir", run_dir.to_str().unwrap(), "--out", png.to_str().unwrap()])
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(stdout.contains("easy") && stdout.contains("μ ="), "{stdout}");
+    let img = image::open(&png).unwrap().to_rgb8();
+    let easy_green = img.pixels().filter(|p| p.0 == [40, 170, 60]).count();
+    assert!(easy_green > 0 || stdout.contains("frontier"), "cells were drawn: {stdout}");
+
     // Phase 3: restart into the same run directory resumes all processes.
     let mut run = run_local(&run_dir, &[]);
     let resumed = wait_for(&run_dir, "the resumed learner updating again", || {

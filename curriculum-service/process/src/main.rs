@@ -316,23 +316,23 @@ fn draw(run_dir: &Path, out: &Path, cell: f32) -> Result<()> {
                 } else if b.contains(Category::Hard, f) {
                     ("hard", [200, 40, 40])
                 } else {
-                    ("other", [120, 120, 200])
+                    ("other", [150, 110, 170])
                 };
                 *counts.entry(name).or_insert(0u32) += 1;
-                canvas.disc(x, y, cell * 0.45, colour);
+                canvas.disc(x, y, cell * canvas.scale * 0.5, colour);
             }
             x += cell;
         }
         y += cell;
     }
     let goal = scene.goal_center;
-    canvas.disc(goal[0], goal[1], 0.6, [255, 255, 255]);
+    canvas.disc(goal[0], goal[1], 0.4 * canvas.scale, [255, 255, 255]);
     if let Some(parent) = out.parent() {
         std::fs::create_dir_all(parent)?;
     }
     pednav_sim::draw::save_png(&canvas.image, out)?;
     println!(
-        "μ = {:.2}, σ = {:.2}, t_c = {}, phase = {}; cells: {counts:?} (green easy, yellow frontier, red hard, blue other)",
+        "μ = {:.2}, σ = {:.2}, t_c = {}, phase = {}; cells: {counts:?} (green easy, yellow frontier, red hard, purple neither)",
         fit.mu,
         fit.sigma,
         curriculum.scheduler().t_c(),

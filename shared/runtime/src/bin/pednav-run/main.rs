@@ -21,6 +21,8 @@ use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result, bail};
+
+mod bench;
 use clap::{Parser, Subcommand};
 use pednav_runtime::messages::process_kind;
 use pednav_runtime::{Ipc, RunConfig, RunDir, StopFlag, run_prefix};
@@ -55,6 +57,9 @@ enum Cmd {
         #[arg(long)]
         learner_threads: Option<usize>,
     },
+    /// Measure the runtime: step-stream throughput, weights latency, whole-system env steps/s.
+    #[command(subcommand)]
+    Bench(bench::Bench),
     /// Validate a config file and print the resolved config.
     Check {
         /// Config file (TOML).
@@ -65,6 +70,7 @@ enum Cmd {
 fn main() -> Result<()> {
     pednav_runtime::init_logging();
     match Cli::parse().command {
+        Cmd::Bench(b) => bench::run(b),
         Cmd::Check { config } => {
             let cfg = RunConfig::load(&config)?;
             print!("{}", cfg.to_toml());
