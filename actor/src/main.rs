@@ -46,6 +46,9 @@ struct Cli {
     /// This actor's id (0-based; seeds and stream ids derive from it).
     #[arg(long)]
     actor: u32,
+    /// Simulator instances in this actor (default: the config's `runtime.envs_per_actor`).
+    #[arg(long)]
+    envs: Option<usize>,
 }
 
 /// Per-environment episode bookkeeping.
@@ -80,7 +83,10 @@ fn main() -> Result<()> {
     let name = format!("actor-{}", cli.actor);
     let incarnation = dir.next_incarnation(&name)?;
     let seed = cfg.seed ^ (cli.actor as u64 + 1).wrapping_mul(0x9E37_79B9_7F4A_7C15) ^ ((incarnation as u64) << 48);
-    let m = cfg.runtime.envs_per_actor;
+    let m = cli.envs.unwrap_or(cfg.runtime.envs_per_actor);
+    if m == 0 || m > 4096 {
+        bail!("--envs must be 1 … 4096, got {m}");
+    }
     let world = Arc::new(SimWorld::new(cfg.scene()?, cfg.sim.clone())?);
     let backend = BackendChoice::from_env().map_err(anyhow::Error::msg)?;
     let mut envs = VecEnv::new(world.clone(), m, backend)?;
@@ -115,7 +121,15 @@ fn main() -> Result<()> {
 
     tracing::info!(actor = cli.actor, incarnation, envs = m, policy = ?cfg.runtime.policy, "actor waiting for the learner and the curriculum service");
     if !steps_out.wait_for_subscriber(&stop, Duration::from_secs(3600)) {
-        return finish(&dir, &name, cli.actor, incarnation, &Counters::default(), &versions_used, "stopped before the learner came up");
+        return finish(
+            &dir,
+            &name,
+            cli.actor,
+            incarnation,
+            &Counters::default(),
+            &versions_used,
+            "stopped before the learner came up",
+        );
     }
     let mut counters = Counters::default();
     let mut seq = 0u64;
@@ -165,10 +179,16 @@ fn main() -> Result<()> {
                     seq,
                     ..StepHeader::default()
                 };
-                let sent = send_step(&steps_out, header, obs_bytes, |dst| match &frames {
-                    Some(f) => f.copy_frame_uninit(e, dst),
-                    None => write_state(&states[e], dst),
-                }, &stop)?;
+                let sent = send_step(
+                    &steps_out,
+                    header,
+                    obs_bytes,
+                    |dst| match &frames {
+                        Some(f) => f.copy_frame_uninit(e, dst),
+                        None => write_state(&states[e], dst),
+                    },
+                    &stop,
+                )?;
                 let Some(bytes) = sent else { break 'run };
                 if pixels {
                     stream.reset(e, &bytes)?;
@@ -256,10 +276,16 @@ fn main() -> Result<()> {
                 policy_version: version,
                 seq,
             };
-            let sent = send_step(&steps_out, header, obs_bytes, |dst| match &frames {
-                Some(f) => f.copy_frame_uninit(e, dst),
-                None => write_state(&states[e], dst),
-            }, &stop)?;
+            let sent = send_step(
+                &steps_out,
+                header,
+                obs_bytes,
+                |dst| match &frames {
+                    Some(f) => f.copy_frame_uninit(e, dst),
+                    None => write_state(&states[e], dst),
+                },
+                &stop,
+            )?;
             let Some(bytes) = sent else { break 'run };
             if pixels && !(t.terminated || t.truncated) {
                 stream.push(e, actions[e], t.reward, &bytes)?;
@@ -331,10 +357,21 @@ fn main() -> Result<()> {
                 rate: rate as f32,
                 ..Heartbeat::default()
             });
-            dir.write_stats(&format!("{name}.live"), &stats_json(cli.actor, incarnation, &counters, &versions_used, "running"))?;
+            dir.write_stats(
+                &format!("{name}.live"),
+                &stats_json(cli.actor, incarnation, &counters, &versions_used, "running"),
+            )?;
         }
     }
-    finish(&dir, &name, cli.actor, incarnation, &counters, &versions_used, if stop.is_set() { "stopped" } else { "ended" })
+    finish(
+        &dir,
+        &name,
+        cli.actor,
+        incarnation,
+        &counters,
+        &versions_used,
+        if stop.is_set() { "stopped" } else { "ended" },
+    )
 }
 
 fn mean(v: &VecDeque<f32>) -> f32 {
@@ -361,7 +398,7 @@ fn write_state(state: &[f32], dst: &mut [std::mem::MaybeUninit<u8>]) {
 
 /// Loan a record, let `fill` write the observation in place, send it; returns a
 /// copy of the bytes for the policy cache (its window keeps its own), or `None` when stopping.
-fn send_step<'a>(
+fn send_step(
     out: &pednav_runtime::ipc::StepSender,
     header: StepHeader,
     len: usize,

@@ -129,7 +129,11 @@ impl Curriculum {
         match (self.net.as_mut(), state.net.as_ref()) {
             (Some(net), Some(saved)) => net.restore(saved).map_err(|e| CurriculumError::Net(e.to_string()))?,
             (None, None) => {}
-            _ => return Err(CurriculumError::Report("saved curriculum and this variant disagree on having a net".into())),
+            _ => {
+                return Err(CurriculumError::Report(
+                    "saved curriculum and this variant disagree on having a net".into(),
+                ));
+            }
         }
         self.scheduler.restore(&state.scheduler);
         self.collected = state.collected.clone();

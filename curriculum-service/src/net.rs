@@ -106,14 +106,22 @@ impl TaskValueNet {
     /// resumed net restarts Adam's moments, which for this small MLP re-converge
     /// within one training round.
     pub fn state(&self) -> candle_core::Result<NetState> {
-        let weights = self.vars.iter().map(|v| v.as_tensor().flatten_all()?.to_vec1::<f32>()).collect::<candle_core::Result<_>>()?;
+        let weights = self
+            .vars
+            .iter()
+            .map(|v| v.as_tensor().flatten_all()?.to_vec1::<f32>())
+            .collect::<candle_core::Result<_>>()?;
         Ok(NetState { weights, rng: self.rng.clone() })
     }
 
     /// Restore what [`TaskValueNet::state`] saved; the shapes must match this net's config.
     pub fn restore(&mut self, state: &NetState) -> candle_core::Result<()> {
         if state.weights.len() != self.vars.len() {
-            candle_core::bail!("saved task-value net has {} tensors, this config {}", state.weights.len(), self.vars.len());
+            candle_core::bail!(
+                "saved task-value net has {} tensors, this config {}",
+                state.weights.len(),
+                self.vars.len()
+            );
         }
         for (v, w) in self.vars.iter().zip(&state.weights) {
             let shape = v.as_tensor().shape().clone();
@@ -230,7 +238,8 @@ mod tests {
         let f = [[3.0, -2.0, 1.0]];
         assert_eq!(a.predict_values(&f).unwrap(), b.predict_values(&f).unwrap());
         assert_eq!(a.state().unwrap().rng, b.state().unwrap().rng);
-        let mut small = TaskValueNet::new(NetConfig { hidden: vec![8], ..NetConfig::default() }, Target::Return, 0).unwrap();
+        let mut small =
+            TaskValueNet::new(NetConfig { hidden: vec![8], ..NetConfig::default() }, Target::Return, 0).unwrap();
         assert!(small.restore(&saved).is_err(), "another architecture is refused");
     }
 }

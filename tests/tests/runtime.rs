@@ -62,7 +62,8 @@ fn wait_for<T>(run_dir: &Path, what: &str, mut cond: impl FnMut() -> Option<T>) 
         if start.elapsed() > WATCHDOG {
             let mut logs = String::new();
             for name in ["learner", "curriculum", "actor-0"] {
-                let text = std::fs::read_to_string(run_dir.join("logs").join(format!("{name}.log"))).unwrap_or_default();
+                let text =
+                    std::fs::read_to_string(run_dir.join("logs").join(format!("{name}.log"))).unwrap_or_default();
                 let tail: Vec<&str> = text.lines().rev().take(15).collect();
                 logs += &format!("\n--- {name}.log (last lines, newest first)\n{}", tail.join("\n"));
             }
@@ -123,14 +124,16 @@ fn actor_learner_curriculum_run_restart_and_resume() {
     }
     // The weights the actor used came from the learner's broadcasts (version = update count).
     let used = num(&actor, "last_policy_version");
-    assert!(used > 0 && used % 5 == 0 && used <= num(&learner, "updates"), "actor used version {used}");
+    assert!(used > 0 && used.is_multiple_of(5) && used <= num(&learner, "updates"), "actor used version {used}");
     // Tasks came from the curriculum service.
     let curriculum = stats(&run_dir, "curriculum").expect("curriculum stats");
     assert!(num(&actor, "tasks_received") >= 2, "{actor}");
     assert!(num(&actor, "last_task_id") <= num(&curriculum, "tasks_issued"));
     assert!(num(&curriculum, "episodes") >= num(&actor, "episodes"), "{curriculum} vs {actor}");
     let checkpointed = num(&learner, "updates");
-    assert!(run_dir.join("checkpoints/learner/state.json").exists() && run_dir.join("checkpoints/curriculum.json").exists());
+    assert!(
+        run_dir.join("checkpoints/learner/state.json").exists() && run_dir.join("checkpoints/curriculum.json").exists()
+    );
 
     // The Fig. 4-style classification from the saved curriculum state.
     let png = root.join("curriculum.png");
@@ -191,8 +194,11 @@ fn two_runs_side_by_side_do_not_interfere_and_stop_at_their_budget() {
         .iter()
         .map(|&(seed, max_updates)| {
             let config = root.join(format!("seed{seed}.toml"));
-            std::fs::write(&config, format!("{smoke}max_updates = {max_updates}\n").replace("seed = 7", &format!("seed = {seed}")))
-                .unwrap();
+            std::fs::write(
+                &config,
+                format!("{smoke}max_updates = {max_updates}\n").replace("seed = 7", &format!("seed = {seed}")),
+            )
+            .unwrap();
             let run_dir = root.join(format!("run{seed}"));
             let child = run_local(&run_dir, &["--config", config.to_str().unwrap()]);
             (run_dir, child)

@@ -17,9 +17,7 @@ use std::time::{Duration, Instant};
 use anyhow::{Context, Result, bail};
 use clap::{Parser, Subcommand};
 use pednav_curriculum::filter::bands;
-use pednav_curriculum::{
-    Category, Curriculum, CurriculumState, EpisodeOutcome, Fit, TaskSampler, task_features,
-};
+use pednav_curriculum::{Category, Curriculum, CurriculumState, EpisodeOutcome, Fit, TaskSampler, task_features};
 use pednav_runtime::messages::{Heartbeat, TaskResponse, process_kind};
 use pednav_runtime::{Ipc, Metrics, RunConfig, RunDir, StopFlag, category_code, category_of, run_prefix};
 use pednav_sim::{Pose, RegionMap, Scene};
@@ -178,7 +176,13 @@ fn serve(run_dir: &Path) -> Result<()> {
             let h = *sample.user_header();
             let points = sample.payload();
             if points.len() != h.length as usize + 1 {
-                tracing::warn!(actor = h.actor, env = h.env, "episode report with {} points for {} steps: ignored", points.len(), h.length);
+                tracing::warn!(
+                    actor = h.actor,
+                    env = h.env,
+                    "episode report with {} points for {} steps: ignored",
+                    points.len(),
+                    h.length
+                );
                 continue;
             }
             let outcome = EpisodeOutcome {
@@ -208,8 +212,13 @@ fn serve(run_dir: &Path) -> Result<()> {
         if last_log.elapsed() >= log_every {
             last_log = Instant::now();
             let s = curriculum.scheduler();
-            let mean_return = if recent.is_empty() { f64::NAN } else { recent.iter().sum::<f32>() as f64 / recent.len() as f64 };
-            let success = if successes.is_empty() { f64::NAN } else { successes.iter().filter(|&&s| s).count() as f64 / successes.len() as f64 };
+            let mean_return =
+                if recent.is_empty() { f64::NAN } else { recent.iter().sum::<f32>() as f64 / recent.len() as f64 };
+            let success = if successes.is_empty() {
+                f64::NAN
+            } else {
+                successes.iter().filter(|&&s| s).count() as f64 / successes.len() as f64
+            };
             let count = |c: Category| proposed.get(category_name(c)).copied().unwrap_or(0) as f64;
             let values = [
                 ("episodes", curriculum.episodes() as f64),
@@ -273,7 +282,7 @@ fn serve(run_dir: &Path) -> Result<()> {
 /// Classify a grid over the curriculum region (yaw facing the goal, the
 /// orientation a researcher reads Fig. 4 with) and draw it over the map.
 fn draw(run_dir: &Path, out: &Path, cell: f32) -> Result<()> {
-    if !(cell > 0.05) {
+    if cell.is_nan() || cell <= 0.05 {
         bail!("--cell must be larger than 0.05 m, got {cell}");
     }
     let dir = RunDir::new(run_dir);

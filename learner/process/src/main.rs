@@ -30,7 +30,10 @@ use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 
 #[derive(Parser)]
-#[command(version, about = "pednav learner: dual replay + DSAC updates at a fixed replay ratio, weight broadcasts, checkpoints")]
+#[command(
+    version,
+    about = "pednav learner: dual replay + DSAC updates at a fixed replay ratio, weight broadcasts, checkpoints"
+)]
 struct Cli {
     /// The run directory (created by `pednav-run`).
     #[arg(long)]
@@ -72,8 +75,17 @@ struct Learner {
 }
 
 impl Learner {
-    /// Take one step record into the replay.
+    /// Take one step record into the replay. A record of the wrong size (an actor
+    /// built from another config) is logged and dropped, never stored.
     fn take(&mut self, h: &StepHeader, bytes: &[u8]) -> Result<()> {
+        let expected = match self.kind {
+            FrameKind::Pixels { size } => size * size,
+            FrameKind::State { dim } => dim * 4,
+        };
+        if bytes.len() != expected {
+            tracing::error!(actor = h.actor, got = bytes.len(), expected, "step record of the wrong size dropped");
+            return Ok(());
+        }
         let tally = self.tallies.entry((h.actor, h.incarnation)).or_default();
         if let Some(last) = tally.last_seq
             && h.seq != last + 1
@@ -170,15 +182,23 @@ fn main() -> Result<()> {
     let mut metrics = Metrics::open(&dir.metrics(), &dir.tb(), "learner")?;
     let publish = |dsac: &Dsac| -> Result<()> {
         let flat = weights::flatten(&dsac.nets)?;
-        let mut sample = weights_out.loan_slice_uninit(flat.len()).map_err(|e| anyhow::anyhow!("loan weights: {e:?}"))?;
+        let mut sample =
+            weights_out.loan_slice_uninit(flat.len()).map_err(|e| anyhow::anyhow!("loan weights: {e:?}"))?;
         *sample.user_header_mut() =
             WeightsHeader { version: dsac.updates, len: flat.len() as u64, published_ns: pednav_runtime::now_ns() };
         sample.write_from_slice(&flat).send().map_err(|e| anyhow::anyhow!("send weights: {e:?}"))?;
         Ok(())
     };
     publish(&l.dsac)?;
-    tracing::info!(threads, weights = n_weights, warmup = cfg.dsac.warmup, batch = cfg.dsac.batch_size, "learner ready");
+    tracing::info!(
+        threads,
+        weights = n_weights,
+        warmup = cfg.dsac.warmup,
+        batch = cfg.dsac.batch_size,
+        "learner ready"
+    );
 
+    let started = Instant::now();
     let mut last_ckpt = Instant::now();
     let mut last_log = Instant::now();
     let (mut last_received, mut last_updates) = (0u64, l.dsac.updates);
@@ -253,6 +273,7 @@ fn main() -> Result<()> {
             metrics.log(
                 received_total,
                 &[
+                    ("elapsed_s", started.elapsed().as_secs_f64()),
                     ("updates", l.dsac.updates as f64),
                     ("env_steps_per_s", steps as f64 / secs),
                     ("updates_per_s", ups as f64 / secs),
@@ -300,7 +321,11 @@ fn main() -> Result<()> {
             if let Some(reason) = budget_spent {
                 // Ask the launcher to stop the run; keep receiving (no more updates)
                 // until it stops the actors and then this process.
-                tracing::info!(reason, updates = l.dsac.updates, "budget spent; waiting for the launcher to stop the run");
+                tracing::info!(
+                    reason,
+                    updates = l.dsac.updates,
+                    "budget spent; waiting for the launcher to stop the run"
+                );
                 save(&mut l, received_total)?;
                 std::fs::write(dir.root().join("DONE"), reason)?;
             }

@@ -78,7 +78,7 @@ impl Default for RuntimeConfig {
 }
 
 /// Everything a run needs; `config.toml` in the run directory.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct RunConfig {
     /// Seed of the run: every process derives its own seed from it (actor k: seed ⊕ k).
@@ -97,21 +97,6 @@ pub struct RunConfig {
     pub curriculum: CurriculumConfig,
     /// Processes and IPC.
     pub runtime: RuntimeConfig,
-}
-
-impl Default for RunConfig {
-    fn default() -> Self {
-        RunConfig {
-            seed: 0,
-            scene: None,
-            sim: SimConfig::default(),
-            nets: NetsConfig::default(),
-            dsac: DsacConfig::default(),
-            replay: ReplayConfig::default(),
-            curriculum: CurriculumConfig::default(),
-            runtime: RuntimeConfig::default(),
-        }
-    }
 }
 
 impl RunConfig {
@@ -138,9 +123,8 @@ impl RunConfig {
 
     /// The scene of the run.
     pub fn scene(&self) -> Result<Scene> {
-        Scene::load_or_reference(self.scene.as_deref()).map_err(|e| {
-            RuntimeError::file(self.scene.clone().unwrap_or_else(|| "reference scene".into()), e)
-        })
+        Scene::load_or_reference(self.scene.as_deref())
+            .map_err(|e| RuntimeError::file(self.scene.clone().unwrap_or_else(|| "reference scene".into()), e))
     }
 
     /// Check every section and their consistency; `file` names the source in errors.
@@ -153,10 +137,9 @@ impl RunConfig {
                 message: message.to_string(),
             })
         };
-        let section = |name: &str, e: String| RuntimeError::Config {
+        let section = |name: &str, e: String| RuntimeError::Section {
             file: file.to_string(),
-            field: name.to_string(),
-            value: String::new(),
+            section: name.to_string(),
             message: e,
         };
         self.sim.validate().map_err(|e| section("sim", e.to_string()))?;
@@ -281,7 +264,15 @@ mod tests {
         assert!(e.contains("runtime.envs_per_actor"), "{e}");
         let mut cfg = RunConfig::default();
         cfg.dsac.warmup = 10;
-        assert!(cfg.validate("x").unwrap_err().to_string().contains("dsac.warmup"));
+        let e = cfg.validate("x").unwrap_err().to_string();
+        assert!(e.contains("[dsac]") && e.contains("warmup") && e.contains("10"), "{e}");
+        let mut cfg = RunConfig::default();
+        cfg.dsac.batch_size = 16;
+        cfg.dsac.warmup = 2_000_000;
+        let e = cfg.validate("x").unwrap_err().to_string();
+        assert!(e.contains("dsac.warmup") && e.contains("replay.nonterminal_capacity"), "{e}");
+        let cfg = RunConfig { scene: Some("/nonexistent/scene.toml".into()), ..RunConfig::default() };
+        assert!(cfg.validate("x").unwrap_err().to_string().contains("/nonexistent/scene.toml"));
     }
 
     #[test]

@@ -17,6 +17,16 @@ pub enum RuntimeError {
         /// What is wrong and how to fix it.
         message: String,
     },
+    /// A section's own validation failed (its message names the field).
+    #[error("config {file}, section [{section}]: {message}")]
+    Section {
+        /// The config file (or "defaults").
+        file: String,
+        /// The section (`sim`, `nets`, `dsac`, `curriculum`).
+        section: String,
+        /// The section's error, naming field and value.
+        message: String,
+    },
     /// A file could not be read, parsed or written.
     #[error("{path}: {message}")]
     File {

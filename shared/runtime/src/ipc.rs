@@ -27,9 +27,7 @@ use iceoryx2::port::{BackpressureAction, BackpressureInfo};
 use iceoryx2::prelude::*;
 
 use crate::error::{Result, RuntimeError};
-use crate::messages::{
-    EpisodeHeader, EpisodePoint, Heartbeat, StepHeader, TaskRequest, TaskResponse, WeightsHeader,
-};
+use crate::messages::{EpisodeHeader, EpisodePoint, Heartbeat, StepHeader, TaskRequest, TaskResponse, WeightsHeader};
 use crate::signal::StopFlag;
 
 /// Step-record publisher (actor side).
@@ -80,7 +78,10 @@ fn service_name(name: &str) -> Result<ServiceName> {
 
 /// A lossless publisher together with its service, so the sender can see whether
 /// anyone is listening (records sent to nobody would be lost).
-pub struct LosslessSender<Payload: std::fmt::Debug + ZeroCopySend + 'static, Header: std::fmt::Debug + ZeroCopySend + 'static> {
+pub struct LosslessSender<
+    Payload: std::fmt::Debug + ZeroCopySend + 'static,
+    Header: std::fmt::Debug + ZeroCopySend + 'static,
+> {
     /// The publisher.
     pub publisher: Publisher<ipc::Service, [Payload], Header>,
     service: iceoryx2::service::port_factory::publish_subscribe::PortFactory<ipc::Service, [Payload], Header>,
@@ -244,13 +245,7 @@ impl Ipc {
     fn task_service(
         &self,
     ) -> Result<
-        iceoryx2::service::port_factory::request_response::PortFactory<
-            ipc::Service,
-            TaskRequest,
-            (),
-            TaskResponse,
-            (),
-        >,
+        iceoryx2::service::port_factory::request_response::PortFactory<ipc::Service, TaskRequest, (), TaskResponse, ()>,
     > {
         self.node
             .service_builder(&service_name("pednav/tasks")?)

@@ -49,7 +49,8 @@ impl Metrics {
     /// later rows must name the same values (missing ones are left empty).
     pub fn log(&mut self, step: u64, values: &[(&str, f64)]) -> Result<()> {
         if self.columns.is_empty() {
-            self.columns = std::iter::once("step".to_string()).chain(values.iter().map(|(k, _)| k.to_string())).collect();
+            self.columns =
+                std::iter::once("step".to_string()).chain(values.iter().map(|(k, _)| k.to_string())).collect();
             writeln!(self.csv, "{}", self.columns.join(",")).map_err(|e| RuntimeError::file(&self.csv_path, e))?;
         }
         let mut row = Vec::with_capacity(self.columns.len());

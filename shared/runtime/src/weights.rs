@@ -44,10 +44,9 @@ pub fn load(nets: &DsacNets, flat: &[f32]) -> Result<()> {
         for (name, var) in store.vars() {
             let shape = var.as_tensor().shape().clone();
             let n = shape.elem_count();
-            let t = candle_core::Tensor::from_slice(&flat[at..at + n], shape, store.device())
+            candle_core::Tensor::from_slice(&flat[at..at + n], shape, store.device())
                 .and_then(|t| var.set(&t))
                 .map_err(|e| RuntimeError::Message(format!("{}/{name}: {e}", store.name())))?;
-            let _ = t;
             at += n;
         }
     }

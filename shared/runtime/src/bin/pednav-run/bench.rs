@@ -52,7 +52,7 @@ pub enum Bench {
         #[arg(long, default_value_t = 16)]
         envs: usize,
         /// Env steps per measurement (the learner's budget).
-        #[arg(long, default_value_t = 20_000)]
+        #[arg(long, default_value_t = 40_000)]
         steps: u64,
         /// Also measure with policy inference (TCN, N_h 16, 84×84, streaming cache).
         #[arg(long, default_value_t = true)]
@@ -101,7 +101,12 @@ fn stream(records: u64, frame: usize) -> Result<()> {
             Some(s) => {
                 start.get_or_insert_with(Instant::now);
                 // Read the whole frame, as the replay's copy does.
-                sum = sum.wrapping_add(s.payload().chunks_exact(8).map(|c| u64::from_le_bytes(c.try_into().unwrap())).fold(0, u64::wrapping_add));
+                sum = sum.wrapping_add(
+                    s.payload()
+                        .chunks_exact(8)
+                        .map(|c| u64::from_le_bytes(c.try_into().unwrap()))
+                        .fold(0, u64::wrapping_add),
+                );
                 if s.user_header().seq != got {
                     bail!("record {got} arrived as {}", s.user_header().seq);
                 }
@@ -248,24 +253,41 @@ fn system(actors: &[u32], envs: usize, steps: u64, inference: bool) -> Result<()
                 &config,
                 format!(
                     "seed = 3\n[sim]\nt_max = 400\n[dsac]\nwarmup = 1000000\n[replay]\nnonterminal_capacity = 1000000\nterminal_capacity = 100000\n\
-                     [curriculum]\nvariant = \"fixed_start\"\n[runtime]\nenvs_per_actor = {envs}\npolicy = \"{policy}\"\nmax_env_steps = {steps}\nmetrics_every_secs = 2.0\n"
+                     [curriculum]\nvariant = \"fixed_start\"\n[runtime]\nenvs_per_actor = {envs}\npolicy = \"{policy}\"\nmax_env_steps = {steps}\nmetrics_every_secs = 1.0\n"
                 ),
             )?;
             let status = Command::new(&exe)
-                .args(["launch", "--actors", &n.to_string(), "--config", config.to_str().unwrap(), "--run-dir", run.to_str().unwrap()])
+                .args([
+                    "launch",
+                    "--actors",
+                    &n.to_string(),
+                    "--config",
+                    config.to_str().unwrap(),
+                    "--run-dir",
+                    run.to_str().unwrap(),
+                ])
                 .stderr(Stdio::null())
                 .status()?;
             if !status.success() {
                 bail!("system run {policy}/{n} failed; see {}", run.join("logs").display());
             }
-            // Mean over the learner's metric rows after the first (start-up) row.
+            // Rate between the first and the last metrics row (start-up and shutdown excluded).
             let csv = std::fs::read_to_string(run.join("metrics/learner.csv"))?;
             let mut lines = csv.lines();
             let header: Vec<&str> = lines.next().context("empty learner metrics")?.split(',').collect();
-            let col = header.iter().position(|h| *h == "env_steps_per_s").context("no env_steps_per_s column")?;
-            let rates: Vec<f64> = lines.skip(1).filter_map(|l| l.split(',').nth(col)?.parse().ok()).collect();
-            let rows = &rates[..rates.len().saturating_sub(1)];
-            let mean = rows.iter().sum::<f64>() / rows.len().max(1) as f64;
+            let col = |name: &str| header.iter().position(|h| *h == name).with_context(|| format!("no {name} column"));
+            let (c_step, c_time) = (col("step")?, col("elapsed_s")?);
+            let rows: Vec<(f64, f64)> = lines
+                .filter_map(|l| {
+                    let v: Vec<&str> = l.split(',').collect();
+                    Some((v.get(c_step)?.parse().ok()?, v.get(c_time)?.parse().ok()?))
+                })
+                .collect();
+            if rows.len() < 2 {
+                bail!("run {policy}/{n} was too short to measure: raise --steps");
+            }
+            let (first, last) = (rows[0], rows[rows.len() - 1]);
+            let mean = (last.0 - first.0) / (last.1 - first.1);
             println!("| {n} × {envs} | {policy} | {mean:.0} |");
         }
     }

@@ -56,6 +56,9 @@ enum Cmd {
         /// Learner compute threads (default: all cores).
         #[arg(long)]
         learner_threads: Option<usize>,
+        /// Simulator instances per actor (default: the config's `runtime.envs_per_actor`).
+        #[arg(long)]
+        envs: Option<usize>,
     },
     /// Measure the runtime: step-stream throughput, weights latency, whole-system env steps/s.
     #[command(subcommand)]
@@ -77,8 +80,8 @@ fn main() -> Result<()> {
             eprintln!("{}: valid", config.display());
             Ok(())
         }
-        Cmd::Launch { actors, config, run_dir, seed, bin_dir, learner_threads } => {
-            launch(actors, config, run_dir, seed, bin_dir, learner_threads)
+        Cmd::Launch { actors, config, run_dir, seed, bin_dir, learner_threads, envs } => {
+            launch(Launch { actors, config, run_dir, seed, bin_dir, learner_threads, envs })
         }
     }
 }
@@ -179,14 +182,24 @@ fn pid_alive(pid: i32) -> bool {
     pid > 0 && unsafe { libc::kill(pid, 0) } == 0
 }
 
-fn launch(
+/// Arguments of `launch`.
+struct Launch {
     actors: u32,
     config: Option<PathBuf>,
     run_dir: Option<PathBuf>,
     seed: Option<u64>,
     bin_dir: Option<PathBuf>,
     learner_threads: Option<usize>,
-) -> Result<()> {
+    envs: Option<usize>,
+}
+
+fn launch(args: Launch) -> Result<()> {
+    let Launch { actors, config, run_dir, seed, bin_dir, learner_threads, envs } = args;
+    if let Some(m) = envs
+        && (m == 0 || m > 4096)
+    {
+        bail!("--envs must be 1 … 4096, got {m}");
+    }
     if actors == 0 || actors as usize > pednav_runtime::ipc::MAX_ACTORS {
         bail!("--actors must be 1 … {}, got {actors}", pednav_runtime::ipc::MAX_ACTORS);
     }
@@ -235,14 +248,15 @@ fn launch(
     let _ = std::fs::remove_file(run_dir.join("DONE"));
     let stop = StopFlag::install();
     // 2. Stale resources of this run (a previous launcher killed hard) go first.
-    let ipc = Ipc::new(&run_prefix(&run_dir), "launcher", cfg.runtime.step_buffer, Duration::from_secs(5), stop.clone())?;
+    let ipc =
+        Ipc::new(&run_prefix(&run_dir), "launcher", cfg.runtime.step_buffer, Duration::from_secs(5), stop.clone())?;
     let heartbeats = ipc.heartbeat_subscriber()?;
     eprintln!(
         "pednav: {} run {} — {} actor(s) × {} envs, variant {:?}, iceoryx2 prefix {}",
         if resumed { "resuming" } else { "starting" },
         run_dir.display(),
         actors,
-        cfg.runtime.envs_per_actor,
+        envs.unwrap_or(cfg.runtime.envs_per_actor),
         cfg.curriculum.variant,
         run_prefix(&run_dir)
     );
@@ -256,14 +270,21 @@ fn launch(
         restarts: VecDeque::new(),
         total_restarts: 0,
     };
-    let mut curriculum = mk("curriculum".into(), "pednav-curriculum", vec!["serve".into(), "--run-dir".into(), rd.clone()]);
+    let mut curriculum =
+        mk("curriculum".into(), "pednav-curriculum", vec!["serve".into(), "--run-dir".into(), rd.clone()]);
     let mut learner_args = vec!["--run-dir".into(), rd.clone()];
     if let Some(t) = learner_threads {
         learner_args.extend(["--threads".into(), t.to_string()]);
     }
     let mut learner = mk("learner".into(), "pednav-learner", learner_args);
     let mut actor_procs: Vec<Proc> = (0..actors)
-        .map(|k| mk(format!("actor-{k}"), "pednav-actor", vec!["--run-dir".into(), rd.clone(), "--actor".into(), k.to_string()]))
+        .map(|k| {
+            let mut args = vec!["--run-dir".into(), rd.clone(), "--actor".into(), k.to_string()];
+            if let Some(m) = envs {
+                args.extend(["--envs".into(), m.to_string()]);
+            }
+            mk(format!("actor-{k}"), "pednav-actor", args)
+        })
         .collect();
     curriculum.start()?;
     learner.start()?;
@@ -292,7 +313,11 @@ fn launch(
                     a.restarts.pop_front();
                 }
                 if a.restarts.len() > 5 {
-                    failure = Some(format!("{} died 6 times within 2 minutes ({status}); last log lines:\n{}", a.name, a.log_tail()));
+                    failure = Some(format!(
+                        "{} died 6 times within 2 minutes ({status}); last log lines:\n{}",
+                        a.name,
+                        a.log_tail()
+                    ));
                     break;
                 }
                 a.total_restarts += 1;
@@ -333,7 +358,11 @@ fn launch(
     ipc.cleanup_dead_nodes();
     let _ = std::fs::remove_file(&lock);
     let summary = std::fs::read_to_string(dir.stats().join("learner.json")).unwrap_or_default();
-    eprintln!("pednav: run directory {}\n{}", run_dir.display(), summary.lines().take(8).collect::<Vec<_>>().join("\n"));
+    eprintln!(
+        "pednav: run directory {}\n{}",
+        run_dir.display(),
+        summary.lines().take(8).collect::<Vec<_>>().join("\n")
+    );
     if let Some(f) = failure {
         bail!("the run stopped because {f}");
     }
@@ -368,4 +397,3 @@ fn progress_line(
         restarts
     )
 }
-
