@@ -2,9 +2,10 @@
 # Install the system packages pednav needs, if they are missing (Debian/Ubuntu).
 #   - Mesa's OpenGL through EGL (llvmpipe) and Vulkan (lavapipe): the renderer runs
 #     on them when there is no GPU; with a GPU its driver is used instead.
+#   - DejaVu Sans, the font the plots (pednav-plot, pednav-eval) write text with.
 # Idempotent and quiet when everything is present; needs root (or sudo) otherwise.
 set -euo pipefail
-packages=(libegl1 libegl-mesa0 libgl1-mesa-dri mesa-vulkan-drivers libvulkan1)
+packages=(libegl1 libegl-mesa0 libgl1-mesa-dri mesa-vulkan-drivers libvulkan1 fonts-dejavu-core)
 missing=()
 for p in "${packages[@]}"; do
     dpkg -s "$p" >/dev/null 2>&1 || missing+=("$p")

@@ -11,11 +11,12 @@
 //! ([`net`]): f^r trained on the augmented tasks of every step (NavACL⁺) or f^s on
 //! initial tasks (NavACL), every Δ_ep episodes.
 //!
-//! Still to come (issue #5): the iceoryx2 service process, state save/resume and
-//! the Fig. 4 classification plot.
+//! [`classify`] draws the task classification over the region (Fig. 4) and holds
+//! the service's saved state; the service process itself is `process/`.
 
 #![warn(missing_docs)]
 
+pub mod classify;
 pub mod config;
 pub mod curriculum;
 pub mod error;
@@ -26,6 +27,7 @@ pub mod returns;
 pub mod sampler;
 pub mod scheduler;
 
+pub use classify::{CellClass, Classification, ServiceState, classify_region};
 pub use config::{CurriculumConfig, Variant};
 pub use curriculum::{Curriculum, CurriculumState, EpisodeOutcome, ReportSummary};
 pub use error::{CurriculumError, Result};

@@ -16,13 +16,10 @@ use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result, bail};
 use clap::{Parser, Subcommand};
-use pednav_curriculum::filter::bands;
-use pednav_curriculum::{Category, Curriculum, CurriculumState, EpisodeOutcome, Fit, TaskSampler, task_features};
-use pednav_runtime::messages::{Heartbeat, TaskResponse, process_kind};
+use pednav_curriculum::{Category, Curriculum, EpisodeOutcome, Fit, ServiceState, classify_region};
+use pednav_runtime::messages::{EpisodeHeader, Heartbeat, TaskResponse, process_kind};
 use pednav_runtime::{Ipc, Metrics, RunConfig, RunDir, StopFlag, category_code, category_of, run_prefix};
-use pednav_sim::{Pose, RegionMap, Scene};
-use rand::SeedableRng;
-use serde::{Deserialize, Serialize};
+use pednav_sim::{Pose, Scene};
 
 #[derive(Parser)]
 #[command(version, about = "pednav curriculum service (NavACL⁺, NavACL, fixed start)")]
@@ -50,24 +47,65 @@ enum Command {
         /// Grid cell size in metres.
         #[arg(long, default_value_t = 0.5)]
         cell: f32,
+        /// A saved state to draw instead of the latest (e.g. one of
+        /// `checkpoints/curriculum-snapshots/*.json`).
+        #[arg(long)]
+        state: Option<PathBuf>,
     },
 }
 
-/// What `checkpoints/curriculum.json` holds.
-#[derive(Serialize, Deserialize)]
-struct SavedService {
-    curriculum: CurriculumState,
-    next_task_id: u64,
-    proposed: BTreeMap<String, u64>,
+/// Reported episodes between two saved snapshots of the curriculum state
+/// (`checkpoints/curriculum-snapshots/`, what `pednav-plot curriculum` draws over time).
+const SNAPSHOT_EVERY_EPISODES: u64 = 500;
+
+/// One row per reported episode: `metrics/episodes.csv`.
+struct EpisodeLog {
+    file: std::fs::File,
+}
+
+impl EpisodeLog {
+    fn open(dir: &RunDir) -> Result<EpisodeLog> {
+        let path = dir.metrics().join("episodes.csv");
+        let new = !path.exists();
+        let mut file = std::fs::OpenOptions::new().create(true).append(true).open(&path)?;
+        if new {
+            use std::io::Write;
+            writeln!(
+                file,
+                "episode,decision_steps,actor,env,task_id,category,x,y,yaw_deg,length,discounted_return,success,truncated"
+            )?;
+        }
+        Ok(EpisodeLog { file })
+    }
+
+    #[allow(clippy::too_many_arguments)]
+    fn write(&mut self, episode: u64, steps: u64, h: &EpisodeHeader, start: Pose, ret: f32) -> Result<()> {
+        use std::io::Write;
+        writeln!(
+            self.file,
+            "{episode},{steps},{},{},{},{},{:.3},{:.3},{:.1},{},{ret:.4},{},{}",
+            h.actor,
+            h.env,
+            h.task_id,
+            category_name(category_of(h.category)?),
+            start.x,
+            start.y,
+            start.yaw.to_degrees(),
+            h.length,
+            h.success,
+            h.truncated
+        )?;
+        Ok(())
+    }
 }
 
 fn main() -> Result<()> {
     pednav_runtime::init_logging();
     match Cli::parse().command {
         Command::Serve { run_dir } => serve(&run_dir),
-        Command::Draw { run_dir, out, cell } => {
+        Command::Draw { run_dir, out, cell, state } => {
             let out = out.unwrap_or_else(|| run_dir.join("plots").join("curriculum.png"));
-            draw(&run_dir, &out, cell)?;
+            draw(&run_dir, state.as_deref(), &out, cell)?;
             println!("wrote {}", out.display());
             Ok(())
         }
@@ -78,27 +116,26 @@ fn curriculum_seed(cfg: &RunConfig) -> u64 {
     cfg.seed ^ 0x6375_7272_6963_756c
 }
 
-/// The run's curriculum, restored from its saved state when there is one.
-fn load_curriculum(dir: &RunDir, cfg: &RunConfig, scene: Scene) -> Result<(Curriculum, Option<SavedService>)> {
-    let mut curriculum = Curriculum::new(cfg.curriculum.clone(), scene, curriculum_seed(cfg))?;
-    let path = dir.curriculum_state();
+/// The run's curriculum, restored from the saved state at `path` when there is one.
+fn load_curriculum(path: &Path, cfg: &RunConfig, scene: Scene) -> Result<(Curriculum, Option<ServiceState>)> {
     if !path.exists() {
-        return Ok((curriculum, None));
+        return Ok((Curriculum::new(cfg.curriculum.clone(), scene, curriculum_seed(cfg))?, None));
     }
-    let text = std::fs::read_to_string(&path).with_context(|| format!("reading {}", path.display()))?;
-    let saved: SavedService =
-        serde_json::from_str(&text).with_context(|| format!("{} is not a curriculum state", path.display()))?;
-    curriculum.restore(&saved.curriculum).with_context(|| format!("restoring {}", path.display()))?;
+    let saved = ServiceState::load(path)?;
+    let curriculum = pednav_curriculum::classify::restore(&cfg.curriculum, scene, curriculum_seed(cfg), &saved)
+        .with_context(|| format!("restoring {}", path.display()))?;
     Ok((curriculum, Some(saved)))
 }
 
-fn save(dir: &RunDir, curriculum: &Curriculum, next_task_id: u64, proposed: &BTreeMap<String, u64>) -> Result<()> {
-    let saved = SavedService { curriculum: curriculum.state()?, next_task_id, proposed: proposed.clone() };
-    let path = dir.curriculum_state();
-    let tmp = path.with_extension("json.tmp");
-    std::fs::write(&tmp, serde_json::to_vec(&saved)?).with_context(|| format!("writing {}", tmp.display()))?;
-    std::fs::rename(&tmp, &path).with_context(|| format!("writing {}", path.display()))?;
-    Ok(())
+fn save(
+    curriculum: &Curriculum,
+    next_task_id: u64,
+    proposed: &BTreeMap<String, u64>,
+    decision_steps: u64,
+    path: &Path,
+) -> Result<()> {
+    let state = ServiceState { curriculum: curriculum.state()?, next_task_id, proposed: proposed.clone(), decision_steps };
+    Ok(state.save(path)?)
 }
 
 fn category_name(c: Category) -> &'static str {
@@ -117,8 +154,8 @@ fn serve(run_dir: &Path) -> Result<()> {
     let dir = RunDir::new(run_dir);
     let cfg = dir.load_config()?;
     let scene = cfg.scene()?;
-    let (mut curriculum, saved) = load_curriculum(&dir, &cfg, scene)?;
-    let (mut next_task_id, mut proposed) = match saved {
+    let (mut curriculum, saved) = load_curriculum(&dir.curriculum_state(), &cfg, scene)?;
+    let (mut next_task_id, mut proposed, mut decision_steps) = match saved {
         Some(s) => {
             tracing::info!(
                 episodes = curriculum.episodes(),
@@ -126,10 +163,14 @@ fn serve(run_dir: &Path) -> Result<()> {
                 acl = curriculum.scheduler().in_acl_phase(),
                 "resumed curriculum state"
             );
-            (s.next_task_id, s.proposed)
+            (s.next_task_id, s.proposed, s.decision_steps)
         }
-        None => (1, BTreeMap::new()),
+        None => (1, BTreeMap::new(), 0),
     };
+    let mut episode_log = EpisodeLog::open(&dir)?;
+    let snapshots = dir.checkpoints().join("curriculum-snapshots");
+    std::fs::create_dir_all(&snapshots)?;
+    let state_path = dir.curriculum_state();
     let ipc = Ipc::new(
         &run_prefix(run_dir),
         "curriculum",
@@ -185,6 +226,7 @@ fn serve(run_dir: &Path) -> Result<()> {
                 );
                 continue;
             }
+            let start = Pose { x: points[0].x, y: points[0].y, yaw: points[0].yaw };
             let outcome = EpisodeOutcome {
                 category: category_of(h.category)?,
                 poses: points.iter().map(|p| Pose { x: p.x, y: p.y, yaw: p.yaw }).collect(),
@@ -197,6 +239,12 @@ fn serve(run_dir: &Path) -> Result<()> {
             if let Some(l) = summary.trained_loss {
                 last_loss = Some(l);
             }
+            decision_steps += h.length as u64;
+            episode_log.write(curriculum.episodes(), decision_steps, &h, start, summary.discounted_return)?;
+            if curriculum.episodes().is_multiple_of(SNAPSHOT_EVERY_EPISODES) {
+                let path = snapshots.join(format!("ep{:08}-steps{}.json", curriculum.episodes(), decision_steps));
+                save(&curriculum, next_task_id, &proposed, decision_steps, &path)?;
+            }
             recent.push_back(summary.discounted_return);
             successes.push_back(outcome.success);
             if recent.len() > 100 {
@@ -205,7 +253,7 @@ fn serve(run_dir: &Path) -> Result<()> {
             }
             since_save += 1;
             if since_save >= cfg.runtime.curriculum_save_every_episodes {
-                save(&dir, &curriculum, next_task_id, &proposed)?;
+                save(&curriculum, next_task_id, &proposed, decision_steps, &state_path)?;
                 since_save = 0;
             }
         }
@@ -264,7 +312,7 @@ fn serve(run_dir: &Path) -> Result<()> {
             std::thread::sleep(Duration::from_micros(500));
         }
     }
-    save(&dir, &curriculum, next_task_id, &proposed)?;
+    save(&curriculum, next_task_id, &proposed, decision_steps, &state_path)?;
     dir.write_stats(
         "curriculum",
         &serde_json::json!({
@@ -272,6 +320,7 @@ fn serve(run_dir: &Path) -> Result<()> {
             "tasks_issued": next_task_id - 1,
             "proposed": proposed,
             "t_c": curriculum.scheduler().t_c(),
+            "decision_steps": decision_steps,
             "acl_phase": curriculum.scheduler().in_acl_phase(),
         }),
     )?;
@@ -281,71 +330,32 @@ fn serve(run_dir: &Path) -> Result<()> {
 
 /// Classify a grid over the curriculum region (yaw facing the goal, the
 /// orientation a researcher reads Fig. 4 with) and draw it over the map.
-fn draw(run_dir: &Path, out: &Path, cell: f32) -> Result<()> {
+fn draw(run_dir: &Path, state: Option<&Path>, out: &Path, cell: f32) -> Result<()> {
     if cell.is_nan() || cell <= 0.05 {
         bail!("--cell must be larger than 0.05 m, got {cell}");
     }
     let dir = RunDir::new(run_dir);
     let cfg = dir.load_config()?;
     let scene = cfg.scene()?;
-    let (mut curriculum, saved) = load_curriculum(&dir, &cfg, scene.clone())?;
-    if saved.is_none() {
-        bail!("{} has no saved curriculum state yet (checkpoints/curriculum.json)", run_dir.display());
+    let path = state.map_or_else(|| dir.curriculum_state(), Path::to_path_buf);
+    if !path.exists() {
+        bail!("{} does not exist: the curriculum service saves its state while a run goes on", path.display());
     }
-    // μ, σ as the scheduler would fit them: the predictions of candidate tasks.
-    let sampler = TaskSampler::new(&scene, cfg.curriculum.max_rejections);
-    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(1);
-    let candidates: Vec<[f32; 3]> = (0..cfg.curriculum.candidates)
-        .map(|_| sampler.sample(&scene, &mut rng).map(|p| task_features(p, scene.goal_center)))
-        .collect::<Result<_, _>>()?;
-    let Some(predictions) = curriculum.predict(&candidates) else {
+    let (mut curriculum, _) = load_curriculum(&path, &cfg, scene.clone())?;
+    let Some(c) = classify_region(&mut curriculum, &scene, &cfg.curriculum, cell)? else {
         bail!("the fixed-start variant has no task classification to draw");
     };
-    let fit = Fit::of(&predictions).expect("candidates ≥ 2");
-    let b = bands(&cfg.curriculum, fit, curriculum.scheduler().t_c());
-    let map = RegionMap::new(&scene);
-    let mut canvas = pednav_sim::draw::draw_map(&scene, &map, 12.0);
-    let bounds = scene.curriculum_region.iter().map(|p| p.bounds()).fold(None, |acc: Option<[f32; 4]>, r| {
-        let [x0, y0, x1, y1] = acc.unwrap_or([f32::MAX, f32::MAX, f32::MIN, f32::MIN]);
-        Some([x0.min(r.min[0]), y0.min(r.min[1]), x1.max(r.max[0]), y1.max(r.max[1])])
-    });
-    let [x0, y0, x1, y1] = bounds.context("the scene has no curriculum region")?;
-    let mut counts = BTreeMap::new();
-    let mut y = y0 + cell / 2.0;
-    while y < y1 {
-        let mut x = x0 + cell / 2.0;
-        while x < x1 {
-            if scene.in_curriculum_region(x, y) {
-                let yaw = (scene.goal_center[1] - y).atan2(scene.goal_center[0] - x);
-                let f = curriculum.predict(&[task_features(Pose { x, y, yaw }, scene.goal_center)]).unwrap()[0];
-                let (name, colour) = if b.contains(Category::Easy, f) {
-                    ("easy", [40, 170, 60])
-                } else if b.contains(Category::Frontier, f) {
-                    ("frontier", [240, 190, 30])
-                } else if b.contains(Category::Hard, f) {
-                    ("hard", [200, 40, 40])
-                } else {
-                    ("other", [150, 110, 170])
-                };
-                *counts.entry(name).or_insert(0u32) += 1;
-                canvas.disc(x, y, cell * canvas.scale * 0.5, colour);
-            }
-            x += cell;
-        }
-        y += cell;
-    }
-    let goal = scene.goal_center;
-    canvas.disc(goal[0], goal[1], 0.4 * canvas.scale, [255, 255, 255]);
     if let Some(parent) = out.parent() {
         std::fs::create_dir_all(parent)?;
     }
-    pednav_sim::draw::save_png(&canvas.image, out)?;
+    pednav_sim::draw::save_png(&c.draw(&scene, 12.0).image, out)?;
     println!(
-        "μ = {:.2}, σ = {:.2}, t_c = {}, phase = {}; cells: {counts:?} (green easy, yellow frontier, red hard, purple neither)",
-        fit.mu,
-        fit.sigma,
-        curriculum.scheduler().t_c(),
-        if curriculum.scheduler().in_acl_phase() { "ACL" } else { "first task" }
+        "μ = {:.2}, σ = {:.2}, t_c = {}, phase = {}; cells: {:?} (green easy, yellow frontier, red hard, purple neither)",
+        c.fit.mu,
+        c.fit.sigma,
+        c.t_c,
+        if c.acl { "ACL" } else { "first task" },
+        c.counts()
     );
     Ok(())
 }

@@ -1,0 +1,179 @@
+//! The classification of the curriculum region that the paper's Fig. 4 shows:
+//! every cell of a grid over the region, with the start yaw facing the goal,
+//! classified by the task-value net into easy / frontier / hard / neither with
+//! the bands of the current t_c; μ and σ fitted on a fresh set of candidate
+//! tasks, as the scheduler does. Also the saved state of the service process
+//! ([`ServiceState`]), so snapshots can be drawn after the fact.
+
+use std::collections::BTreeMap;
+use std::path::Path;
+
+use pednav_sim::draw::{MapCanvas, draw_map};
+use pednav_sim::{Pose, RegionMap, Scene};
+use rand::SeedableRng;
+use serde::{Deserialize, Serialize};
+
+use crate::config::CurriculumConfig;
+use crate::curriculum::{Curriculum, CurriculumState};
+use crate::error::{CurriculumError, Result};
+use crate::filter::{Category, Fit, bands};
+use crate::returns::task_features;
+use crate::sampler::TaskSampler;
+
+/// What the curriculum service saves (`checkpoints/curriculum.json` and the snapshots).
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct ServiceState {
+    /// The curriculum itself.
+    pub curriculum: CurriculumState,
+    /// The next task id to hand out.
+    pub next_task_id: u64,
+    /// Tasks proposed per category name.
+    pub proposed: BTreeMap<String, u64>,
+    /// Decision steps of all reported episodes.
+    #[serde(default)]
+    pub decision_steps: u64,
+}
+
+impl ServiceState {
+    /// Read a saved state.
+    pub fn load(path: &Path) -> Result<ServiceState> {
+        let text = std::fs::read_to_string(path)
+            .map_err(|e| CurriculumError::Report(format!("{}: cannot read: {e}", path.display())))?;
+        serde_json::from_str(&text)
+            .map_err(|e| CurriculumError::Report(format!("{}: not a curriculum state: {e}", path.display())))
+    }
+
+    /// Write it atomically.
+    pub fn save(&self, path: &Path) -> Result<()> {
+        let tmp = path.with_extension("json.tmp");
+        let io = |e: std::io::Error| CurriculumError::Report(format!("{}: {e}", path.display()));
+        std::fs::write(&tmp, serde_json::to_vec(self).expect("state serialises")).map_err(io)?;
+        std::fs::rename(&tmp, path).map_err(io)
+    }
+}
+
+/// Class of one grid cell.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord)]
+pub enum CellClass {
+    /// f > μ + β_e σ.
+    Easy,
+    /// μ − β_f^l σ < f < μ + β_f^h σ.
+    Frontier,
+    /// f < μ − β_h σ.
+    Hard,
+    /// None of the bands.
+    Neither,
+}
+
+impl CellClass {
+    /// Colour used in the pictures.
+    pub fn colour(self) -> [u8; 3] {
+        match self {
+            CellClass::Easy => [40, 170, 60],
+            CellClass::Frontier => [240, 190, 30],
+            CellClass::Hard => [200, 40, 40],
+            CellClass::Neither => [150, 110, 170],
+        }
+    }
+}
+
+/// The classified grid.
+#[derive(Debug, Clone)]
+pub struct Classification {
+    /// μ, σ of the candidates' predictions.
+    pub fit: Fit,
+    /// Cell centres and classes.
+    pub cells: Vec<([f32; 2], CellClass)>,
+    /// Cell size in metres.
+    pub cell: f32,
+    /// t_c of the state.
+    pub t_c: u64,
+    /// Whether the state is in the ACL phase.
+    pub acl: bool,
+}
+
+impl Classification {
+    /// Cells per class.
+    pub fn counts(&self) -> BTreeMap<CellClass, usize> {
+        let mut m = BTreeMap::new();
+        for (_, c) in &self.cells {
+            *m.entry(*c).or_default() += 1;
+        }
+        m
+    }
+
+    /// Draw the grid over the bird's-eye map at `px_per_m`.
+    pub fn draw(&self, scene: &Scene, px_per_m: f32) -> MapCanvas {
+        let mut canvas = draw_map(scene, &RegionMap::new(scene), px_per_m);
+        for &([x, y], class) in &self.cells {
+            canvas.disc(x, y, self.cell * px_per_m * 0.5, class.colour());
+        }
+        let g = scene.goal_center;
+        canvas.disc(g[0], g[1], 0.4 * px_per_m, [255, 255, 255]);
+        canvas
+    }
+}
+
+/// Classify the curriculum region of `scene` with `curriculum`'s task-value net.
+/// `None` for the fixed-start variant (no net).
+pub fn classify_region(
+    curriculum: &mut Curriculum,
+    scene: &Scene,
+    cfg: &CurriculumConfig,
+    cell: f32,
+) -> Result<Option<Classification>> {
+    let sampler = TaskSampler::new(scene, cfg.max_rejections);
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(1);
+    let candidates: Vec<[f32; 3]> = (0..cfg.candidates)
+        .map(|_| sampler.sample(scene, &mut rng).map(|p| task_features(p, scene.goal_center)))
+        .collect::<Result<_>>()?;
+    let Some(predictions) = curriculum.predict(&candidates) else {
+        return Ok(None);
+    };
+    let fit = Fit::of(&predictions).expect("at least two candidates (validated)");
+    let t_c = curriculum.scheduler().t_c();
+    let b = bands(cfg, fit, t_c);
+    let mut points = Vec::new();
+    let mut features = Vec::new();
+    for poly in &scene.curriculum_region {
+        let r = poly.bounds();
+        let mut y = r.min[1] + cell / 2.0;
+        while y < r.max[1] {
+            let mut x = r.min[0] + cell / 2.0;
+            while x < r.max[0] {
+                if scene.in_curriculum_region(x, y) && !points.contains(&[x, y]) {
+                    let yaw = (scene.goal_center[1] - y).atan2(scene.goal_center[0] - x);
+                    points.push([x, y]);
+                    features.push(task_features(Pose { x, y, yaw }, scene.goal_center));
+                }
+                x += cell;
+            }
+            y += cell;
+        }
+    }
+    let values = curriculum.predict(&features).expect("the net exists");
+    let cells = points
+        .into_iter()
+        .zip(values)
+        .map(|(p, f)| {
+            let class = if b.contains(Category::Easy, f) {
+                CellClass::Easy
+            } else if b.contains(Category::Frontier, f) {
+                CellClass::Frontier
+            } else if b.contains(Category::Hard, f) {
+                CellClass::Hard
+            } else {
+                CellClass::Neither
+            };
+            (p, class)
+        })
+        .collect();
+    Ok(Some(Classification { fit, cells, cell, t_c, acl: curriculum.scheduler().in_acl_phase() }))
+}
+
+/// A curriculum restored from a saved service state.
+pub fn restore(cfg: &CurriculumConfig, scene: Scene, seed: u64, state: &ServiceState) -> Result<Curriculum> {
+    let mut c = Curriculum::new(cfg.clone(), scene, seed)?;
+    c.restore(&state.curriculum)?;
+    Ok(c)
+}

@@ -1,0 +1,254 @@
+//! `pednav-eval` — the paper's validation protocol on a checkpoint.
+//!
+//! ```text
+//! pednav-eval --run-dir runs/X                       # 14 points × 8 yaws × 10 runs, T_max 2000, learned policy (mode)
+//! pednav-eval --run-dir runs/X --workers 2           # the same over 2 processes
+//! pednav-eval --run-dir runs/X --starts starts.csv   # any start list (x,y,yaw in degrees)
+//! pednav-eval --policy random --runs 2               # the random-walk baseline (no run needed)
+//! pednav-eval --policy oracle --runs 1               # the planner, an upper reference
+//! pednav-eval --run-dir runs/X --gif 3:180:0         # also a GIF of point 3, yaw 180°, run 0
+//! ```
+//! Prints the Table III layout and writes `table.txt`, `table.csv`, `results.csv`
+//! (every episode) and `trajectories.png` (Fig. 5) to `--out` (default
+//! `<run>/eval/<policy>`).
+
+use std::path::{Path, PathBuf};
+use std::process::Command;
+use std::time::Instant;
+
+use anyhow::{Context, Result, bail};
+use clap::{Parser, ValueEnum};
+use pednav_experiments::evaluate::{Evaluator, PolicyKind, load_policy, oracle_per_point};
+use pednav_experiments::plots;
+use pednav_experiments::protocol::{self, EvalTask, YAWS_DEG};
+use pednav_experiments::table::{self, EpisodeResult};
+use pednav_runtime::RunConfig;
+
+#[derive(Clone, Copy, PartialEq, Eq, ValueEnum, Debug)]
+enum PolicyArg {
+    /// The checkpoint's policy.
+    Learned,
+    /// Uniform random actions (random-walk baseline).
+    Random,
+    /// The oracle planner.
+    Oracle,
+}
+
+#[derive(Parser, Debug)]
+#[command(version, about = "Validation protocol of the paper (§V-C) on a pednav checkpoint: Table III, CSV, Fig. 5")]
+struct Cli {
+    /// Run directory whose latest checkpoint and config are evaluated (required for `--policy learned`).
+    #[arg(long)]
+    run_dir: Option<PathBuf>,
+    /// Which policy acts.
+    #[arg(long, value_enum, default_value_t = PolicyArg::Learned)]
+    policy: PolicyArg,
+    /// Sample actions instead of acting with the policy's mode tanh(μ).
+    #[arg(long)]
+    stochastic: bool,
+    /// Runs per (point, yaw). Paper: 10.
+    #[arg(long, default_value_t = protocol::RUNS)]
+    runs: u32,
+    /// Episode limit. Paper: 2000.
+    #[arg(long, default_value_t = protocol::T_MAX)]
+    t_max: u32,
+    /// Start poses from a CSV file (`x,y,yaw`, degrees) instead of the 14 points × 8 yaws.
+    #[arg(long)]
+    starts: Option<PathBuf>,
+    /// Environments stepped together per process.
+    #[arg(long, default_value_t = 8)]
+    envs: usize,
+    /// Worker processes.
+    #[arg(long, default_value_t = 1)]
+    workers: usize,
+    /// Seed of the task list (look, policy noise).
+    #[arg(long, default_value_t = 0)]
+    seed: u64,
+    /// Output folder (default: <run>/eval/<policy>, or eval/<policy> without a run).
+    #[arg(long)]
+    out: Option<PathBuf>,
+    /// Also record these episodes as GIFs: POINT:YAW:RUN (repeatable).
+    #[arg(long)]
+    gif: Vec<String>,
+    /// Skip the oracle column (planning takes a few seconds).
+    #[arg(long)]
+    no_oracle: bool,
+    /// (internal) worker index.
+    #[arg(long, hide = true)]
+    shard: Option<usize>,
+    /// (internal) worker count.
+    #[arg(long, hide = true, default_value_t = 1)]
+    of: usize,
+    /// (internal) worker output.
+    #[arg(long, hide = true)]
+    shard_out: Option<PathBuf>,
+}
+
+fn kind(cli: &Cli) -> PolicyKind {
+    match cli.policy {
+        PolicyArg::Learned => PolicyKind::Learned { deterministic: !cli.stochastic },
+        PolicyArg::Random => PolicyKind::Random,
+        PolicyArg::Oracle => PolicyKind::Oracle,
+    }
+}
+
+fn setup(cli: &Cli) -> Result<(RunConfig, Option<(pednav_nets::NetsConfig, pednav_nets::DsacNets)>)> {
+    match (&cli.run_dir, cli.policy) {
+        (Some(dir), PolicyArg::Learned) => {
+            let (cfg, nets) = load_policy(dir)?;
+            let nc = cfg.nets.clone();
+            Ok((cfg, Some((nc, nets))))
+        }
+        (Some(dir), _) => Ok((RunConfig::load(&dir.join("config.toml"))?, None)),
+        (None, PolicyArg::Learned) => bail!("--policy learned needs --run-dir (a run with a checkpoint)"),
+        (None, _) => Ok((RunConfig::default(), None)),
+    }
+}
+
+fn tasks(cli: &Cli, cfg: &RunConfig) -> Result<Vec<EvalTask>> {
+    if cli.runs == 0 {
+        bail!("--runs must be at least 1");
+    }
+    Ok(match &cli.starts {
+        Some(path) => protocol::tasks_from_csv(path, cli.runs, cli.seed)?,
+        None => protocol::validation_tasks(&cfg.scene()?, cli.runs, cli.seed),
+    })
+}
+
+fn main() -> Result<()> {
+    pednav_runtime::init_logging();
+    let cli = Cli::parse();
+    if cli.envs == 0 || cli.workers == 0 {
+        bail!("--envs and --workers must be at least 1");
+    }
+    pednav_nets::init_cpu_runtime(Some(1));
+    let (cfg, nets) = setup(&cli)?;
+    let all = tasks(&cli, &cfg)?;
+    let gamma = cfg.dsac.gamma as f32;
+
+    if let Some(k) = cli.shard {
+        // Worker: run a shard, write JSON.
+        let mine = protocol::shard(&all, k, cli.of);
+        let mut ev = Evaluator::new(cfg.scene()?, &cfg.sim, cli.t_max, gamma, cli.envs, kind(&cli), nets, cli.seed ^ k as u64)?;
+        let results = ev.run(&mine, |_| {})?;
+        let out = cli.shard_out.as_ref().context("--shard needs --shard-out")?;
+        std::fs::write(out, serde_json::to_vec(&results)?)?;
+        return Ok(());
+    }
+
+    let policy_name = format!("{:?}", cli.policy).to_lowercase();
+    let out = cli.out.clone().unwrap_or_else(|| match &cli.run_dir {
+        Some(d) => d.join("eval").join(&policy_name),
+        None => PathBuf::from("eval").join(&policy_name),
+    });
+    std::fs::create_dir_all(&out).with_context(|| format!("creating {}", out.display()))?;
+    eprintln!(
+        "pednav-eval: {} episodes ({} × {} runs), T_max {}, policy {policy_name}{}, {} worker(s) × {} envs",
+        all.len(),
+        if cli.starts.is_none() {
+            format!("{} points × {} yaws", all.len() / cli.runs as usize / YAWS_DEG.len(), YAWS_DEG.len())
+        } else {
+            format!("{} start poses", all.len() / cli.runs as usize)
+        },
+        cli.runs,
+        cli.t_max,
+        if cli.stochastic { " (sampled)" } else { "" },
+        cli.workers,
+        cli.envs
+    );
+    let t0 = Instant::now();
+    let mut results: Vec<EpisodeResult> = if cli.workers == 1 {
+        let mut ev = Evaluator::new(cfg.scene()?, &cfg.sim, cli.t_max, gamma, cli.envs, kind(&cli), nets, cli.seed)?;
+        let n = all.len();
+        ev.run(&all, |done| {
+            if done % 20 == 0 || done == n {
+                eprint!("\r  {done}/{n} episodes ({:.0} s)", t0.elapsed().as_secs_f64());
+            }
+        })?
+    } else {
+        run_workers(&cli, &out)?
+    };
+    eprintln!("\r  {} episodes in {:.0} s", results.len(), t0.elapsed().as_secs_f64());
+    let order = |r: &EpisodeResult| (r.point, YAWS_DEG.iter().position(|&y| y == r.yaw_deg).unwrap_or(99), r.run);
+    results.sort_by_key(order);
+
+    let oracle = if cli.no_oracle {
+        Default::default()
+    } else {
+        let mut starts: Vec<(u32, f32, f32)> = Vec::new();
+        for t in &all {
+            if !starts.iter().any(|s| s.0 == t.point) {
+                starts.push((t.point, t.x, t.y));
+            }
+        }
+        oracle_per_point(&cfg.scene()?, &cfg.sim, gamma, cli.t_max, &starts)?
+    };
+    let t = table::aggregate(&results, &oracle);
+    let title = format!(
+        "{} — {policy_name} policy, {} episodes, T_max {}",
+        cli.run_dir.as_ref().map_or("no run".into(), |d| d.display().to_string()),
+        results.len(),
+        cli.t_max
+    );
+    let text = t.render(&title);
+    print!("{text}");
+    std::fs::write(out.join("table.txt"), &text)?;
+    t.write_csv(&out.join("table.csv"))?;
+    table::write_results_csv(&results, &out.join("results.csv"))?;
+    plots::trajectories(&cfg.scene()?, &results, &policy_name, &out.join("trajectories.png"))?;
+    for spec in &cli.gif {
+        let task = gif_task(spec, &all)?;
+        let mut ev = Evaluator::new(cfg.scene()?, &cfg.sim, cli.t_max, gamma, 1, kind(&cli), setup(&cli)?.1, task.seed)?;
+        let path = out.join(format!("episode-p{}-y{}-r{}.gif", task.point, task.yaw_deg, task.run));
+        let r = ev.record_gif(task, &path)?;
+        eprintln!("wrote {} (return {:.2}, {} steps, success {})", path.display(), r.discounted_return, r.steps, r.success);
+    }
+    eprintln!("wrote {}/{{table.txt,table.csv,results.csv,trajectories.png}}", out.display());
+    Ok(())
+}
+
+fn gif_task(spec: &str, all: &[EvalTask]) -> Result<EvalTask> {
+    let parts: Vec<&str> = spec.split(':').collect();
+    let parse = || -> Option<(u32, f32, u32)> { Some((parts.first()?.parse().ok()?, parts.get(1)?.parse().ok()?, parts.get(2)?.parse().ok()?)) };
+    let (p, y, r) = parse().with_context(|| format!("--gif expects POINT:YAW:RUN, got `{spec}`"))?;
+    all.iter()
+        .find(|t| t.point == p && t.yaw_deg == y && t.run == r)
+        .copied()
+        .with_context(|| format!("--gif {spec}: no such episode in the task list"))
+}
+
+fn run_workers(cli: &Cli, out: &Path) -> Result<Vec<EpisodeResult>> {
+    let exe = std::env::current_exe()?;
+    let mut children = Vec::new();
+    for k in 0..cli.workers {
+        let shard_out = out.join(format!(".shard{k}.json"));
+        let mut cmd = Command::new(&exe);
+        if let Some(d) = &cli.run_dir {
+            cmd.arg("--run-dir").arg(d);
+        }
+        if let Some(s) = &cli.starts {
+            cmd.arg("--starts").arg(s);
+        }
+        if cli.stochastic {
+            cmd.arg("--stochastic");
+        }
+        cmd.args(["--policy", &format!("{:?}", cli.policy).to_lowercase()])
+            .args(["--runs", &cli.runs.to_string(), "--t-max", &cli.t_max.to_string()])
+            .args(["--envs", &cli.envs.to_string(), "--seed", &cli.seed.to_string()])
+            .args(["--shard", &k.to_string(), "--of", &cli.workers.to_string()])
+            .arg("--shard-out")
+            .arg(&shard_out);
+        children.push((cmd.spawn().context("starting a worker")?, shard_out));
+    }
+    let mut results = Vec::new();
+    for (mut c, path) in children {
+        let status = c.wait()?;
+        if !status.success() {
+            bail!("worker {} failed ({status})", path.display());
+        }
+        let part: Vec<EpisodeResult> = serde_json::from_slice(&std::fs::read(&path)?)?;
+        results.extend(part);
+        let _ = std::fs::remove_file(&path);
+    }
+    Ok(results)
+}

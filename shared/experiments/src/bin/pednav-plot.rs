@@ -1,0 +1,231 @@
+//! `pednav-plot` — figures from run directories.
+//!
+//! ```text
+//! pednav-plot curves --run-dir runs/X          # Fig. 3: return and episodes vs decision steps, with oracle lines
+//! pednav-plot curriculum --run-dir runs/X      # Fig. 4 over time, from the curriculum snapshots
+//! pednav-plot compare --group "TCN=runs/a,runs/b" --group "FR=runs/c,runs/d" --out cmp.png
+//! pednav-plot all --run-dir runs/X             # curves + curriculum
+//! ```
+//! Training curves come from `metrics/episodes.csv` (one row per episode, written
+//! by the curriculum service).
+
+use std::path::{Path, PathBuf};
+
+use anyhow::{Context, Result, bail};
+use clap::{Parser, Subcommand};
+use pednav_experiments::plots::{self, PALETTE, Series, moving_average};
+use pednav_runtime::RunConfig;
+use pednav_sim::oracle::{Oracle, OracleConfig};
+use pednav_sim::{ObsMode, Pose, SimConfig, SimWorld};
+
+#[derive(Parser)]
+#[command(version, about = "Plots of pednav runs: training curves (Fig. 3), curriculum snapshots (Fig. 4), comparisons")]
+struct Cli {
+    #[command(subcommand)]
+    command: Cmd,
+}
+
+#[derive(Subcommand)]
+enum Cmd {
+    /// Discounted return vs decision steps (with oracle lines) and episodes vs decision steps.
+    Curves {
+        /// The run directory.
+        #[arg(long)]
+        run_dir: PathBuf,
+        /// Output folder (default <run>/plots).
+        #[arg(long)]
+        out: Option<PathBuf>,
+        /// Moving-average window in episodes.
+        #[arg(long, default_value_t = 50)]
+        window: usize,
+    },
+    /// The curriculum classification at up to --max snapshots over the run.
+    Curriculum {
+        /// The run directory.
+        #[arg(long)]
+        run_dir: PathBuf,
+        /// Output PNG (default <run>/plots/curriculum_snapshots.png).
+        #[arg(long)]
+        out: Option<PathBuf>,
+        /// Most snapshots to show.
+        #[arg(long, default_value_t = 6)]
+        max: usize,
+    },
+    /// Mean ± std over seeds of the smoothed return for groups of runs.
+    Compare {
+        /// LABEL=RUN_DIR[,RUN_DIR…] (repeatable).
+        #[arg(long, required = true)]
+        group: Vec<String>,
+        /// Output PNG.
+        #[arg(long)]
+        out: PathBuf,
+        /// Moving-average window in episodes (per run, before averaging).
+        #[arg(long, default_value_t = 50)]
+        window: usize,
+    },
+    /// `curves` and (when snapshots exist) `curriculum`.
+    All {
+        /// The run directory.
+        #[arg(long)]
+        run_dir: PathBuf,
+    },
+}
+
+/// (decision steps, discounted return) of every episode of a run.
+fn episodes(run: &Path) -> Result<Vec<(f64, f64)>> {
+    let path = run.join("metrics").join("episodes.csv");
+    let text = std::fs::read_to_string(&path)
+        .with_context(|| format!("{}: no episode log (the curriculum service writes it during a run)", path.display()))?;
+    let mut lines = text.lines();
+    let header: Vec<&str> = lines.next().context("empty episode log")?.split(',').collect();
+    let col = |n: &str| header.iter().position(|h| *h == n).with_context(|| format!("{}: no `{n}` column", path.display()));
+    let (cs, cr) = (col("decision_steps")?, col("discounted_return")?);
+    let rows: Vec<(f64, f64)> = lines
+        .filter_map(|l| {
+            let v: Vec<&str> = l.split(',').collect();
+            Some((v.get(cs)?.parse().ok()?, v.get(cr)?.parse().ok()?))
+        })
+        .collect();
+    if rows.is_empty() {
+        bail!("{}: no episodes yet", path.display());
+    }
+    Ok(rows)
+}
+
+fn oracle_lines(cfg: &RunConfig) -> Result<Vec<(String, f64)>> {
+    let scene = cfg.scene()?;
+    let world = SimWorld::new(scene, SimConfig { obs_mode: ObsMode::StateDebug, ..cfg.sim.clone() })?;
+    let gamma = cfg.dsac.gamma as f32;
+    let oracle = Oracle::plan(&world, OracleConfig { gamma, ..OracleConfig::default() });
+    let t_max = cfg.sim.t_max;
+    let mut lines = Vec::new();
+    let mut add = |label: &str, pose: Pose| {
+        let r = oracle.rollout(&world, pose, t_max).discounted_return as f64;
+        lines.push((format!("oracle, {label}: {r:.1}"), r));
+    };
+    match cfg.curriculum.variant {
+        pednav_curriculum::Variant::FixedStart => add("fixed start", world.scene.fixed_start()),
+        _ => {
+            add("first task", world.scene.first_task());
+            for p in world.scene.validation_points().iter().filter(|p| p.id == 0 || p.id == 7) {
+                add(&format!("point {}", p.id), Pose::from_degrees(p.x, p.y, p.favourable_yaw_deg));
+            }
+        }
+    }
+    Ok(lines)
+}
+
+fn curves(run: &Path, out: &Path, window: usize) -> Result<()> {
+    let cfg = RunConfig::load(&run.join("config.toml"))?;
+    let eps = episodes(run)?;
+    let steps: Vec<f64> = eps.iter().map(|e| e.0).collect();
+    let ret: Vec<f64> = eps.iter().map(|e| e.1).collect();
+    let smooth = moving_average(&ret, window);
+    let name = run.file_name().map_or("run".into(), |n| n.to_string_lossy().to_string());
+    plots::line_chart(
+        &out.join("training_return.png"),
+        &format!("{name}: discounted return per episode ({:?})", cfg.curriculum.variant),
+        "decision steps",
+        "discounted return",
+        &[
+            Series { label: "episodes".into(), points: steps.iter().copied().zip(ret.iter().copied()).collect(), band: None, colour: PALETTE[0], dots: true },
+            Series { label: format!("moving average ({window} episodes)"), points: steps.iter().copied().zip(smooth).collect(), band: None, colour: PALETTE[0], dots: false },
+        ],
+        &oracle_lines(&cfg)?,
+    )?;
+    plots::line_chart(
+        &out.join("episodes.png"),
+        &format!("{name}: episodes vs decision steps (steeper is better)"),
+        "decision steps",
+        "episodes",
+        &[Series { label: "episodes".into(), points: steps.iter().enumerate().map(|(i, &s)| (s, i as f64 + 1.0)).collect(), band: None, colour: PALETTE[1], dots: false }],
+        &[],
+    )?;
+    println!("wrote {}/training_return.png and episodes.png ({} episodes, {:.0} decision steps)", out.display(), eps.len(), steps.last().unwrap());
+    Ok(())
+}
+
+fn curriculum(run: &Path, out: &Path, max: usize) -> Result<()> {
+    let cfg = RunConfig::load(&run.join("config.toml"))?;
+    let dir = run.join("checkpoints").join("curriculum-snapshots");
+    let mut snaps: Vec<PathBuf> = std::fs::read_dir(&dir)
+        .with_context(|| format!("{}: no snapshots (saved every 500 episodes)", dir.display()))?
+        .flatten()
+        .map(|e| e.path())
+        .filter(|p| p.extension().is_some_and(|e| e == "json"))
+        .collect();
+    let latest = run.join("checkpoints").join("curriculum.json");
+    snaps.sort();
+    if latest.exists() {
+        snaps.push(latest);
+    }
+    let seed = cfg.seed ^ 0x6375_7272_6963_756c;
+    let n = plots::curriculum_snapshots(&cfg.scene()?, &cfg.curriculum, seed, &snaps, max, out)?;
+    println!("wrote {} ({n} snapshots)", out.display());
+    Ok(())
+}
+
+fn compare(groups: &[String], out: &Path, window: usize) -> Result<()> {
+    let mut series = Vec::new();
+    for (gi, g) in groups.iter().enumerate() {
+        let (label, runs) = g.split_once('=').with_context(|| format!("--group expects LABEL=RUN[,RUN…], got `{g}`"))?;
+        let runs: Vec<&str> = runs.split(',').filter(|s| !s.is_empty()).collect();
+        let curves: Vec<Vec<(f64, f64)>> = runs
+            .iter()
+            .map(|r| {
+                let e = episodes(Path::new(r))?;
+                let s = moving_average(&e.iter().map(|x| x.1).collect::<Vec<_>>(), window);
+                Ok(e.iter().map(|x| x.0).zip(s).collect())
+            })
+            .collect::<Result<_>>()?;
+        // Common grid up to the shortest run; each curve sampled by its last value at or before x.
+        let end = curves.iter().map(|c| c.last().unwrap().0).fold(f64::MAX, f64::min);
+        let grid: Vec<f64> = (1..=100).map(|i| end * i as f64 / 100.0).collect();
+        let mut mean = Vec::new();
+        let mut std = Vec::new();
+        for &x in &grid {
+            let vals: Vec<f64> = curves
+                .iter()
+                .filter_map(|c| c.iter().take_while(|p| p.0 <= x).last().map(|p| p.1))
+                .collect();
+            if vals.is_empty() {
+                mean.push(f64::NAN);
+                std.push(0.0);
+                continue;
+            }
+            let m = vals.iter().sum::<f64>() / vals.len() as f64;
+            mean.push(m);
+            std.push((vals.iter().map(|v| (v - m).powi(2)).sum::<f64>() / vals.len() as f64).sqrt());
+        }
+        let keep: Vec<usize> = (0..grid.len()).filter(|&i| mean[i].is_finite()).collect();
+        series.push(Series {
+            label: format!("{label} ({} runs)", runs.len()),
+            points: keep.iter().map(|&i| (grid[i], mean[i])).collect(),
+            band: Some(keep.iter().map(|&i| std[i]).collect()),
+            colour: PALETTE[gi % PALETTE.len()],
+            dots: false,
+        });
+    }
+    plots::line_chart(out, "discounted return, mean ± std over runs", "decision steps", "discounted return (smoothed)", &series, &[])?;
+    println!("wrote {}", out.display());
+    Ok(())
+}
+
+fn main() -> Result<()> {
+    pednav_runtime::init_logging();
+    match Cli::parse().command {
+        Cmd::Curves { run_dir, out, window } => curves(&run_dir, &out.unwrap_or_else(|| run_dir.join("plots")), window),
+        Cmd::Curriculum { run_dir, out, max } => {
+            curriculum(&run_dir, &out.unwrap_or_else(|| run_dir.join("plots").join("curriculum_snapshots.png")), max)
+        }
+        Cmd::Compare { group, out, window } => compare(&group, &out, window),
+        Cmd::All { run_dir } => {
+            curves(&run_dir, &run_dir.join("plots"), 50)?;
+            let cfg = RunConfig::load(&run_dir.join("config.toml"))?;
+            if cfg.curriculum.variant != pednav_curriculum::Variant::FixedStart {
+                curriculum(&run_dir, &run_dir.join("plots").join("curriculum_snapshots.png"), 6)?;
+            }
+            Ok(())
+        }
+    }
+}

@@ -1,0 +1,37 @@
+//! Errors of the experiments library.
+
+use std::path::{Path, PathBuf};
+
+/// What can go wrong running an evaluation or drawing a plot.
+#[derive(Debug, thiserror::Error)]
+pub enum ExperimentError {
+    /// A file could not be read, parsed or written.
+    #[error("{path}: {message}")]
+    File {
+        /// The file.
+        path: PathBuf,
+        /// What happened.
+        message: String,
+    },
+    /// Drawing failed.
+    #[error("plot: {0}")]
+    Plot(String),
+    /// The simulator refused something.
+    #[error(transparent)]
+    Sim(#[from] pednav_sim::SimError),
+    /// The networks failed.
+    #[error(transparent)]
+    Nets(#[from] pednav_nets::NetError),
+    /// A tensor operation failed.
+    #[error(transparent)]
+    Candle(#[from] candle_core::Error),
+}
+
+impl ExperimentError {
+    pub(crate) fn file(path: &Path, message: impl std::fmt::Display) -> ExperimentError {
+        ExperimentError::File { path: path.to_path_buf(), message: message.to_string() }
+    }
+}
+
+/// Result with [`ExperimentError`].
+pub type Result<T> = std::result::Result<T, ExperimentError>;

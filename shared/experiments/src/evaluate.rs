@@ -1,0 +1,290 @@
+//! Running evaluation episodes: a batch of environments stepped together, each
+//! taking the next task of the list when its episode ends.
+//!
+//! Invariant: with a deterministic policy (the default: the policy's mode,
+//! tanh(μ)), an episode's result depends only on its task — not on the batch
+//! size, the order, or how the list was split across processes — because the
+//! simulator is deterministic given the task's seed and the learned policy's
+//! streaming cache equals the full recompute per environment.
+
+use std::collections::BTreeMap;
+use std::path::Path;
+use std::sync::Arc;
+
+use candle_core::{Device, Tensor};
+use pednav_learner::{Dsac, load_checkpoint};
+use pednav_nets::{DsacNets, NetsConfig, Obs, PolicyStream};
+use pednav_runtime::RunConfig;
+use pednav_sim::draw::{draw_map, enlarge_gray, save_gif, side_by_side};
+use pednav_sim::oracle::{Oracle, OracleConfig};
+use pednav_sim::{Action, BackendChoice, ObsMode, Pose, SimConfig, SimWorld, VecEnv};
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+
+use crate::error::{ExperimentError, Result};
+use crate::protocol::{EvalTask, YAWS_DEG};
+use crate::table::EpisodeResult;
+
+/// Which policy acts.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum PolicyKind {
+    /// The learned policy of a checkpoint: its mode (deterministic) or samples.
+    Learned {
+        /// Act with tanh(μ) instead of sampling.
+        deterministic: bool,
+    },
+    /// Uniform random actions (the random-walk baseline).
+    Random,
+    /// The oracle planner's greedy action (an upper reference).
+    Oracle,
+}
+
+enum Policy {
+    Learned { nets: DsacNets, cfg: NetsConfig, stream: PolicyStream, deterministic: bool, rng: ChaCha8Rng },
+    Random(ChaCha8Rng),
+    Oracle(Box<Oracle>),
+}
+
+/// Evaluates tasks with one policy on a batch of environments.
+pub struct Evaluator {
+    world: Arc<SimWorld>,
+    envs: VecEnv,
+    policy: Policy,
+    gamma: f32,
+    device: Device,
+}
+
+/// Per-environment episode in progress.
+struct Running {
+    task: EvalTask,
+    filler: bool,
+    ret: f32,
+    discount: f32,
+    steps: u32,
+    trajectory: Vec<[f32; 2]>,
+}
+
+/// The networks of a run's latest checkpoint.
+pub fn load_policy(run_dir: &Path) -> Result<(RunConfig, DsacNets)> {
+    let cfg = RunConfig::load(&run_dir.join("config.toml"))
+        .map_err(|e| ExperimentError::file(&run_dir.join("config.toml"), e))?;
+    let ckpt = run_dir.join("checkpoints").join("learner");
+    let mut dsac = Dsac::new(&cfg.dsac, &cfg.nets, &Device::Cpu, cfg.seed)
+        .map_err(|e| ExperimentError::file(&ckpt, e))?;
+    load_checkpoint(&ckpt, &mut dsac).map_err(|e| ExperimentError::file(&ckpt, e))?;
+    Ok((cfg, dsac.nets))
+}
+
+impl Evaluator {
+    /// An evaluator with `envs` environments. `sim` is the run's simulator config
+    /// (its `t_max` is replaced by `t_max`); `nets` is needed for learned policies.
+    pub fn new(
+        scene: pednav_sim::Scene,
+        sim: &SimConfig,
+        t_max: u32,
+        gamma: f32,
+        envs: usize,
+        kind: PolicyKind,
+        nets: Option<(NetsConfig, DsacNets)>,
+        seed: u64,
+    ) -> Result<Evaluator> {
+        let learned = matches!(kind, PolicyKind::Learned { .. });
+        // Only a learned pixel policy needs the renderer.
+        let obs_mode = if learned { sim.obs_mode } else { ObsMode::StateDebug };
+        let world = Arc::new(SimWorld::new(scene, SimConfig { t_max, obs_mode, ..sim.clone() })?);
+        let envs_ = VecEnv::new(world.clone(), envs, BackendChoice::from_env().map_err(|e| ExperimentError::Plot(e))?)?;
+        let device = Device::Cpu;
+        let policy = match kind {
+            PolicyKind::Learned { deterministic } => {
+                let (cfg, nets) = nets.ok_or_else(|| ExperimentError::Plot("a learned policy needs a checkpoint".into()))?;
+                Policy::Learned {
+                    stream: PolicyStream::new(&cfg, envs, &device),
+                    nets,
+                    cfg,
+                    deterministic,
+                    rng: ChaCha8Rng::seed_from_u64(seed),
+                }
+            }
+            PolicyKind::Random => Policy::Random(ChaCha8Rng::seed_from_u64(seed)),
+            PolicyKind::Oracle => Policy::Oracle(Box::new(Oracle::plan(&world, OracleConfig { gamma, ..OracleConfig::default() }))),
+        };
+        Ok(Evaluator { world, envs: envs_, policy, gamma, device })
+    }
+
+    fn pixels(&self) -> bool {
+        matches!(self.policy, Policy::Learned { .. }) && self.world.config.obs_mode == ObsMode::Pixels
+    }
+
+    fn start(&mut self, e: usize, task: EvalTask, filler: bool, running: &mut [Option<Running>]) -> Result<()> {
+        let pose = task.pose();
+        self.envs.reset(e, pose, task.seed)?;
+        running[e] = Some(Running { task, filler, ret: 0.0, discount: 1.0, steps: 0, trajectory: vec![[pose.x, pose.y]] });
+        Ok(())
+    }
+
+    fn first_frames(&mut self, started: &[usize]) -> Result<()> {
+        if started.is_empty() || !self.pixels() {
+            return Ok(());
+        }
+        let frames = self.envs.render()?;
+        if let Policy::Learned { stream, .. } = &mut self.policy {
+            for &e in started {
+                stream.reset(e, &frames.frame(e))?;
+            }
+        }
+        Ok(())
+    }
+
+    fn actions(&mut self) -> Result<Vec<Action>> {
+        let m = self.envs.num_envs();
+        Ok(match &mut self.policy {
+            Policy::Random(rng) => {
+                (0..m).map(|_| [rng.random_range(-1.0..1.0), rng.random_range(-1.0..1.0), rng.random_range(-1.0..1.0)]).collect()
+            }
+            Policy::Oracle(o) => (0..m).map(|e| o.best_action(&self.world, self.envs.pedestrian(e))).collect(),
+            Policy::Learned { nets, cfg, stream, deterministic, rng } => {
+                let all: Vec<usize> = (0..m).collect();
+                let f = if self.world.config.obs_mode == ObsMode::Pixels {
+                    stream.features(nets.acting_encoder(), &all)?
+                } else {
+                    let s: Vec<f32> = (0..m).flat_map(|e| self.envs.state_obs(e)).collect();
+                    nets.acting_encoder().encode(&Obs::State(Tensor::from_vec(s, (m, cfg.state_dim), &self.device)?))?
+                };
+                let dist = nets.policy.head(&f)?;
+                let a = if *deterministic {
+                    dist.mode()?
+                } else {
+                    let eps = pednav_nets::heads::standard_normal(rng, m, &self.device)?;
+                    dist.sample(&eps)?.action
+                };
+                a.to_vec2::<f32>()?.into_iter().map(|v| [v[0], v[1], v[2]]).collect()
+            }
+        })
+    }
+
+    /// Run every task; `progress` is called with the number of finished episodes.
+    pub fn run(&mut self, tasks: &[EvalTask], mut progress: impl FnMut(usize)) -> Result<Vec<EpisodeResult>> {
+        let m = self.envs.num_envs();
+        let mut running: Vec<Option<Running>> = (0..m).map(|_| None).collect();
+        let mut results = Vec::with_capacity(tasks.len());
+        let mut next = 0;
+        let mut started = Vec::new();
+        for e in 0..m {
+            let (task, filler) = if next < tasks.len() { (tasks[next], false) } else { (tasks[0], true) };
+            next += !filler as usize;
+            self.start(e, task, filler, &mut running)?;
+            started.push(e);
+        }
+        self.first_frames(&started)?;
+        while running.iter().any(|r| r.as_ref().is_some_and(|r| !r.filler)) {
+            let actions = self.actions()?;
+            let transitions = self.envs.step(&actions)?.to_vec();
+            let pixels = self.pixels();
+            let frames: Vec<Vec<u8>> = if pixels {
+                let f = self.envs.render()?;
+                (0..m).map(|e| f.frame(e)).collect()
+            } else {
+                Vec::new()
+            };
+            started.clear();
+            for (e, t) in transitions.iter().enumerate() {
+                let r = running[e].as_mut().expect("every env runs an episode");
+                r.ret += r.discount * t.reward;
+                r.discount *= self.gamma;
+                r.steps += 1;
+                r.trajectory.push([t.pose.x, t.pose.y]);
+                if t.terminated || t.truncated {
+                    let done = running[e].take().expect("present");
+                    if !done.filler {
+                        results.push(EpisodeResult {
+                            point: done.task.point,
+                            yaw_deg: done.task.yaw_deg,
+                            run: done.task.run,
+                            discounted_return: done.ret,
+                            success: t.terminated,
+                            steps: done.steps,
+                            trajectory: done.trajectory,
+                        });
+                        progress(results.len());
+                    }
+                    let (task, filler) = if next < tasks.len() { (tasks[next], false) } else { (tasks[0], true) };
+                    next += !filler as usize;
+                    self.start(e, task, filler, &mut running)?;
+                    started.push(e);
+                } else if pixels && let Policy::Learned { stream, .. } = &mut self.policy {
+                    stream.push(e, actions[e], t.reward, &frames[e])?;
+                }
+            }
+            self.first_frames(&started)?;
+        }
+        Ok(results)
+    }
+
+    /// Record one task as a GIF: the ×4 first-person view beside the map with the trajectory.
+    pub fn record_gif(&mut self, task: EvalTask, out: &Path) -> Result<EpisodeResult> {
+        if self.envs.num_envs() != 1 {
+            return Err(ExperimentError::Plot("record_gif needs an evaluator with one environment".into()));
+        }
+        let mut running = vec![None];
+        self.start(0, task, false, &mut running)?;
+        self.first_frames(&[0])?;
+        let base = draw_map(&self.world.scene, &self.world.map, 4.0);
+        let size = self.world.config.image_size;
+        let mut gif = Vec::new();
+        loop {
+            let frame = if self.world.config.obs_mode == ObsMode::Pixels {
+                self.envs.render()?.frame(0)
+            } else {
+                vec![0; (size * size) as usize]
+            };
+            let r = running[0].as_ref().expect("running");
+            let mut canvas = base.clone();
+            let trail: Vec<(f32, f32)> = r.trajectory.iter().map(|p| (p[0], p[1])).collect();
+            canvas.polyline(&trail, 2.0, [220, 40, 40]);
+            let p = self.envs.pedestrian(0);
+            canvas.pose_arrow(Pose { yaw: p.camera_yaw(), ..p.pose }, 2.0, [250, 140, 0]);
+            gif.push(side_by_side(&enlarge_gray(&frame, size, 4), &canvas.image));
+            let a = self.actions()?;
+            let t = self.envs.step(&a)?[0];
+            let r = running[0].as_mut().expect("running");
+            r.ret += r.discount * t.reward;
+            r.discount *= self.gamma;
+            r.steps += 1;
+            r.trajectory.push([t.pose.x, t.pose.y]);
+            if t.terminated || t.truncated {
+                let done = running[0].take().expect("running");
+                save_gif(&gif, 100, out)?;
+                return Ok(EpisodeResult {
+                    point: task.point,
+                    yaw_deg: task.yaw_deg,
+                    run: task.run,
+                    discounted_return: done.ret,
+                    success: t.terminated,
+                    steps: done.steps,
+                    trajectory: done.trajectory,
+                });
+            }
+            if self.pixels() {
+                let f = self.envs.render()?.frame(0);
+                if let Policy::Learned { stream, .. } = &mut self.policy {
+                    stream.push(0, a[0], t.reward, &f)?;
+                }
+            }
+        }
+    }
+}
+
+/// The oracle's optimal discounted return per start point, averaged over the
+/// protocol's yaws (greedy rollouts on the planned values, `t_max` steps).
+pub fn oracle_per_point(scene: &pednav_sim::Scene, sim: &SimConfig, gamma: f32, t_max: u32, starts: &[(u32, f32, f32)]) -> Result<BTreeMap<u32, f64>> {
+    let world = SimWorld::new(scene.clone(), SimConfig { t_max, obs_mode: ObsMode::StateDebug, ..sim.clone() })?;
+    let oracle = Oracle::plan(&world, OracleConfig { gamma, ..OracleConfig::default() });
+    Ok(starts
+        .iter()
+        .map(|&(point, x, y)| {
+            let mean = YAWS_DEG.iter().map(|&yaw| oracle.rollout(&world, Pose::from_degrees(x, y, yaw), t_max).discounted_return as f64).sum::<f64>()
+                / YAWS_DEG.len() as f64;
+            (point, mean)
+        })
+        .collect())
+}

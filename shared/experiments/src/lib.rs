@@ -1,0 +1,20 @@
+//! # pednav-experiments — reproducing the paper's evaluation and figures
+//!
+//! - [`protocol`]: the validation protocol of §V-C (14 points × 8 yaws × 10 runs,
+//!   T_max 2000) and custom start lists;
+//! - [`evaluate`]: running the episodes with a checkpoint's policy (or random,
+//!   or the oracle), batched, deterministic per task;
+//! - [`table`]: Table III's aggregation (mean ± std per point, Avg.Int, Avg.Ext,
+//!   success rate, oracle);
+//! - [`plots`]: Fig. 3 (return and episodes vs decision steps), Fig. 4 snapshots,
+//!   Fig. 5 trajectories, multi-run comparisons.
+
+#![warn(missing_docs)]
+
+pub mod error;
+pub mod evaluate;
+pub mod plots;
+pub mod protocol;
+pub mod table;
+
+pub use error::{ExperimentError, Result};

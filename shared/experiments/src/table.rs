@@ -1,0 +1,183 @@
+//! Episode results and the Table III aggregation.
+//!
+//! Per start point: mean ± std of the discounted return over all its episodes
+//! (8 yaws × runs; std is the population standard deviation, numpy's default),
+//! the success rate, and the oracle's optimal return averaged over the same start
+//! yaws. Avg.Int and Avg.Ext are the means of the per-point means over points
+//! 0–7 and 8–13, as in the paper's Table III.
+
+use std::collections::BTreeMap;
+use std::fmt::Write as _;
+use std::path::Path;
+
+use serde::{Deserialize, Serialize};
+
+use crate::error::{ExperimentError, Result};
+use crate::protocol::INTERIOR;
+
+/// The outcome of one evaluation episode.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct EpisodeResult {
+    /// Start point index.
+    pub point: u32,
+    /// Start yaw, degrees.
+    pub yaw_deg: f32,
+    /// Repetition.
+    pub run: u32,
+    /// Discounted return Σ γ^t r_{t+1}.
+    pub discounted_return: f32,
+    /// The goal was reached.
+    pub success: bool,
+    /// Decision steps taken.
+    pub steps: u32,
+    /// Positions visited (x, y), start first.
+    pub trajectory: Vec<[f32; 2]>,
+}
+
+/// One row of the table.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct PointRow {
+    /// Start point index.
+    pub point: u32,
+    /// Episodes.
+    pub episodes: usize,
+    /// Mean discounted return.
+    pub mean: f64,
+    /// Population standard deviation of the discounted return.
+    pub std: f64,
+    /// Fraction of episodes that reached the goal.
+    pub success_rate: f64,
+    /// Oracle's optimal discounted return from the same starts (mean over yaws), if known.
+    pub oracle: Option<f64>,
+}
+
+/// The aggregated table.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct Table {
+    /// Rows by point.
+    pub rows: Vec<PointRow>,
+    /// Mean of the per-point means of points 0–7 (None without such points).
+    pub avg_int: Option<f64>,
+    /// Mean of the per-point means of points ≥ 8.
+    pub avg_ext: Option<f64>,
+}
+
+fn mean(v: &[f64]) -> f64 {
+    v.iter().sum::<f64>() / v.len() as f64
+}
+
+/// Aggregate results; `oracle` maps point → optimal return for its starts.
+pub fn aggregate(results: &[EpisodeResult], oracle: &BTreeMap<u32, f64>) -> Table {
+    let mut by_point: BTreeMap<u32, Vec<&EpisodeResult>> = BTreeMap::new();
+    for r in results {
+        by_point.entry(r.point).or_default().push(r);
+    }
+    let rows: Vec<PointRow> = by_point
+        .into_iter()
+        .map(|(point, rs)| {
+            let g: Vec<f64> = rs.iter().map(|r| r.discounted_return as f64).collect();
+            let m = mean(&g);
+            let var = g.iter().map(|x| (x - m).powi(2)).sum::<f64>() / g.len() as f64;
+            PointRow {
+                point,
+                episodes: rs.len(),
+                mean: m,
+                std: var.sqrt(),
+                success_rate: rs.iter().filter(|r| r.success).count() as f64 / rs.len() as f64,
+                oracle: oracle.get(&point).copied(),
+            }
+        })
+        .collect();
+    let avg = |f: &dyn Fn(u32) -> bool| {
+        let v: Vec<f64> = rows.iter().filter(|r| f(r.point)).map(|r| r.mean).collect();
+        (!v.is_empty()).then(|| mean(&v))
+    };
+    Table {
+        avg_int: avg(&|p| INTERIOR.contains(&p)),
+        avg_ext: avg(&|p| !INTERIOR.contains(&p)),
+        rows,
+    }
+}
+
+impl Table {
+    /// The table as text: one line per point in the paper's "mean ± std" form,
+    /// with success rate and oracle, then Avg.Int and Avg.Ext.
+    pub fn render(&self, title: &str) -> String {
+        let mut s = String::new();
+        let _ = writeln!(s, "{title}");
+        let _ = writeln!(s, "{:>5} | {:>16} | {:>7} | {:>7} | {:>8}", "point", "return mean ± std", "success", "oracle", "episodes");
+        let _ = writeln!(s, "{}", "-".repeat(56));
+        for r in &self.rows {
+            let oracle = r.oracle.map_or("—".to_string(), |o| format!("{o:.1}"));
+            let _ = writeln!(
+                s,
+                "{:>5} | {:>16} | {:>6.0}% | {:>7} | {:>8}",
+                r.point,
+                format!("{:.1} ± {:.1}", r.mean, r.std),
+                100.0 * r.success_rate,
+                oracle,
+                r.episodes
+            );
+        }
+        let _ = writeln!(s, "{}", "-".repeat(56));
+        let f = |v: Option<f64>| v.map_or("—".to_string(), |v| format!("{v:.1}"));
+        let _ = writeln!(s, "Avg.Int (points 0–7): {}   Avg.Ext (points 8–13): {}", f(self.avg_int), f(self.avg_ext));
+        s
+    }
+
+    /// Write the table as CSV (one row per point, then Avg.Int and Avg.Ext rows).
+    pub fn write_csv(&self, path: &Path) -> Result<()> {
+        let mut s = String::from("point,episodes,mean,std,success_rate,oracle\n");
+        for r in &self.rows {
+            let oracle = r.oracle.map_or(String::new(), |o| format!("{o:.4}"));
+            let _ = writeln!(s, "{},{},{:.4},{:.4},{:.4},{oracle}", r.point, r.episodes, r.mean, r.std, r.success_rate);
+        }
+        let f = |v: Option<f64>| v.map_or(String::new(), |v| format!("{v:.4}"));
+        let _ = writeln!(s, "avg_int,,{},,,", f(self.avg_int));
+        let _ = writeln!(s, "avg_ext,,{},,,", f(self.avg_ext));
+        std::fs::write(path, s).map_err(|e| ExperimentError::file(path, e))
+    }
+}
+
+/// Write every episode as CSV.
+pub fn write_results_csv(results: &[EpisodeResult], path: &Path) -> Result<()> {
+    let mut s = String::from("point,yaw_deg,run,discounted_return,success,steps\n");
+    for r in results {
+        let _ = writeln!(s, "{},{},{},{:.4},{},{}", r.point, r.yaw_deg, r.run, r.discounted_return, r.success, r.steps);
+    }
+    std::fs::write(path, s).map_err(|e| ExperimentError::file(path, e))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn r(point: u32, g: f32, success: bool) -> EpisodeResult {
+        EpisodeResult { point, yaw_deg: 0.0, run: 0, discounted_return: g, success, steps: 10, trajectory: vec![] }
+    }
+
+    #[test]
+    fn aggregation_matches_hand_computed_values() {
+        // Point 0: returns 2, 4, 9 → mean 5, population var ((9 + 1 + 16)/3) = 26/3, std 2.9439.
+        // Point 1: returns −10, −20 → mean −15, std 5.
+        // Point 9: return −30 → mean −30, std 0.
+        let results =
+            vec![r(0, 2.0, true), r(0, 4.0, true), r(0, 9.0, false), r(1, -10.0, false), r(1, -20.0, true), r(9, -30.0, false)];
+        let oracle = BTreeMap::from([(0, 4.5), (1, -3.0)]);
+        let t = aggregate(&results, &oracle);
+        assert_eq!(t.rows.len(), 3);
+        let p0 = &t.rows[0];
+        assert_eq!((p0.point, p0.episodes), (0, 3));
+        assert!((p0.mean - 5.0).abs() < 1e-12);
+        assert!((p0.std - (26.0f64 / 3.0).sqrt()).abs() < 1e-12);
+        assert!((p0.success_rate - 2.0 / 3.0).abs() < 1e-12);
+        assert_eq!(p0.oracle, Some(4.5));
+        assert!((t.rows[1].std - 5.0).abs() < 1e-12 && t.rows[1].success_rate == 0.5);
+        assert_eq!(t.rows[2].oracle, None);
+        // Avg.Int = mean(5, −15) = −5; Avg.Ext = −30.
+        assert_eq!(t.avg_int, Some(-5.0));
+        assert_eq!(t.avg_ext, Some(-30.0));
+        let text = t.render("test");
+        assert!(text.contains("5.0 ± 2.9") && text.contains("Avg.Int (points 0–7): -5.0"), "{text}");
+    }
+}
