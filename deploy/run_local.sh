@@ -4,7 +4,7 @@
 #
 #   ./deploy/run_local.sh --actors 2                       # new run, CPU preset
 #   ./deploy/run_local.sh --actors 2 --config FILE         # new run, your config
-#   ./deploy/run_local.sh --actors 2 --run-dir runs/X      # resume run X
+#   ./deploy/run_local.sh --actors 2 --run-dir runs/X      # new run X (CPU preset), or resume it
 #
 # Ctrl-C (or SIGTERM) stops the actors, then the learner (final checkpoint) and
 # the curriculum service (saved state); running the same --run-dir again resumes.
@@ -18,18 +18,21 @@ cd "$(dirname "$0")/.."
 
 args=("$@")
 have_config=0
-have_run_dir=0
+run_dir=""
+prev=""
 for a in "${args[@]}"; do
     case "$a" in
         --config|--config=*) have_config=1 ;;
-        --run-dir|--run-dir=*) have_run_dir=1 ;;
+        --run-dir=*) run_dir="${a#--run-dir=}" ;;
         -h|--help)
             sed -n '2,16p' "$0" | sed 's/^# \{0,1\}//'
             exit 0 ;;
     esac
+    [[ "$prev" == "--run-dir" ]] && run_dir="$a"
+    prev="$a"
 done
-# A new run without --config uses the reduced CPU preset (a resume reads the run's own config).
-if [[ $have_config -eq 0 && $have_run_dir -eq 0 ]]; then
+# A new run without --config uses the reduced CPU preset; a resume reads the run's own config.
+if [[ $have_config -eq 0 && ( -z "$run_dir" || ! -f "$run_dir/config.toml" ) ]]; then
     args+=(--config deploy/configs/cpu_reduced.toml)
 fi
 

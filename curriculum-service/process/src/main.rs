@@ -134,7 +134,8 @@ fn save(
     decision_steps: u64,
     path: &Path,
 ) -> Result<()> {
-    let state = ServiceState { curriculum: curriculum.state()?, next_task_id, proposed: proposed.clone(), decision_steps };
+    let state =
+        ServiceState { curriculum: curriculum.state()?, next_task_id, proposed: proposed.clone(), decision_steps };
     Ok(state.save(path)?)
 }
 

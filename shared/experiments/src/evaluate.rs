@@ -69,8 +69,8 @@ pub fn load_policy(run_dir: &Path) -> Result<(RunConfig, DsacNets)> {
     let cfg = RunConfig::load(&run_dir.join("config.toml"))
         .map_err(|e| ExperimentError::file(&run_dir.join("config.toml"), e))?;
     let ckpt = run_dir.join("checkpoints").join("learner");
-    let mut dsac = Dsac::new(&cfg.dsac, &cfg.nets, &Device::Cpu, cfg.seed)
-        .map_err(|e| ExperimentError::file(&ckpt, e))?;
+    let mut dsac =
+        Dsac::new(&cfg.dsac, &cfg.nets, &Device::Cpu, cfg.seed).map_err(|e| ExperimentError::file(&ckpt, e))?;
     load_checkpoint(&ckpt, &mut dsac).map_err(|e| ExperimentError::file(&ckpt, e))?;
     Ok((cfg, dsac.nets))
 }
@@ -96,7 +96,8 @@ impl Evaluator {
         let device = Device::Cpu;
         let policy = match kind {
             PolicyKind::Learned { deterministic } => {
-                let (cfg, nets) = nets.ok_or_else(|| ExperimentError::Plot("a learned policy needs a checkpoint".into()))?;
+                let (cfg, nets) =
+                    nets.ok_or_else(|| ExperimentError::Plot("a learned policy needs a checkpoint".into()))?;
                 Policy::Learned {
                     stream: PolicyStream::new(&cfg, envs, &device),
                     nets,
@@ -106,7 +107,9 @@ impl Evaluator {
                 }
             }
             PolicyKind::Random => Policy::Random(ChaCha8Rng::seed_from_u64(seed)),
-            PolicyKind::Oracle => Policy::Oracle(Box::new(Oracle::plan(&world, OracleConfig { gamma, ..OracleConfig::default() }))),
+            PolicyKind::Oracle => {
+                Policy::Oracle(Box::new(Oracle::plan(&world, OracleConfig { gamma, ..OracleConfig::default() })))
+            }
         };
         Ok(Evaluator { world, envs: envs_, policy, gamma, device })
     }
@@ -118,7 +121,8 @@ impl Evaluator {
     fn start(&mut self, e: usize, task: EvalTask, filler: bool, running: &mut [Option<Running>]) -> Result<()> {
         let pose = task.pose();
         self.envs.reset(e, pose, task.seed)?;
-        running[e] = Some(Running { task, filler, ret: 0.0, discount: 1.0, steps: 0, trajectory: vec![[pose.x, pose.y]] });
+        running[e] =
+            Some(Running { task, filler, ret: 0.0, discount: 1.0, steps: 0, trajectory: vec![[pose.x, pose.y]] });
         Ok(())
     }
 
@@ -138,9 +142,9 @@ impl Evaluator {
     fn actions(&mut self) -> Result<Vec<Action>> {
         let m = self.envs.num_envs();
         Ok(match &mut self.policy {
-            Policy::Random(rng) => {
-                (0..m).map(|_| [rng.random_range(-1.0..1.0), rng.random_range(-1.0..1.0), rng.random_range(-1.0..1.0)]).collect()
-            }
+            Policy::Random(rng) => (0..m)
+                .map(|_| [rng.random_range(-1.0..1.0), rng.random_range(-1.0..1.0), rng.random_range(-1.0..1.0)])
+                .collect(),
             Policy::Oracle(o) => (0..m).map(|e| o.best_action(&self.world, self.envs.pedestrian(e))).collect(),
             Policy::Learned { nets, cfg, stream, deterministic, rng } => {
                 let all: Vec<usize> = (0..m).collect();
@@ -276,13 +280,22 @@ impl Evaluator {
 
 /// The oracle's optimal discounted return per start point, averaged over the
 /// protocol's yaws (greedy rollouts on the planned values, `t_max` steps).
-pub fn oracle_per_point(scene: &pednav_sim::Scene, sim: &SimConfig, gamma: f32, t_max: u32, starts: &[(u32, f32, f32)]) -> Result<BTreeMap<u32, f64>> {
+pub fn oracle_per_point(
+    scene: &pednav_sim::Scene,
+    sim: &SimConfig,
+    gamma: f32,
+    t_max: u32,
+    starts: &[(u32, f32, f32)],
+) -> Result<BTreeMap<u32, f64>> {
     let world = SimWorld::new(scene.clone(), SimConfig { t_max, obs_mode: ObsMode::StateDebug, ..sim.clone() })?;
     let oracle = Oracle::plan(&world, OracleConfig { gamma, ..OracleConfig::default() });
     Ok(starts
         .iter()
         .map(|&(point, x, y)| {
-            let mean = YAWS_DEG.iter().map(|&yaw| oracle.rollout(&world, Pose::from_degrees(x, y, yaw), t_max).discounted_return as f64).sum::<f64>()
+            let mean = YAWS_DEG
+                .iter()
+                .map(|&yaw| oracle.rollout(&world, Pose::from_degrees(x, y, yaw), t_max).discounted_return as f64)
+                .sum::<f64>()
                 / YAWS_DEG.len() as f64;
             (point, mean)
         })

@@ -28,7 +28,8 @@ pub fn init_font() -> Result<()> {
             format!("no DejaVu Sans font at {FONT_PATHS:?}: install `fonts-dejavu-core` (deploy/setup_system.sh does)")
         })?;
         let bytes: &'static [u8] = Box::leak(bytes.into_boxed_slice());
-        plotters::style::register_font("sans-serif", FontStyle::Normal, bytes).map_err(|_| "invalid font file".to_string())
+        plotters::style::register_font("sans-serif", FontStyle::Normal, bytes)
+            .map_err(|_| "invalid font file".to_string())
     })
     .clone()
     .map_err(ExperimentError::Plot)
@@ -233,8 +234,9 @@ pub fn curriculum_snapshots(
         return Err(ExperimentError::Plot("no curriculum snapshots to draw".into()));
     }
     let n = snapshots.len().min(max.max(1));
-    let chosen: Vec<&std::path::PathBuf> =
-        (0..n).map(|i| &snapshots[if n == 1 { snapshots.len() - 1 } else { i * (snapshots.len() - 1) / (n - 1) }]).collect();
+    let chosen: Vec<&std::path::PathBuf> = (0..n)
+        .map(|i| &snapshots[if n == 1 { snapshots.len() - 1 } else { i * (snapshots.len() - 1) / (n - 1) }])
+        .collect();
     let mut tiles = Vec::new();
     for p in &chosen {
         let state = ServiceState::load(p).map_err(|e| ExperimentError::file(p, e))?;
@@ -265,7 +267,12 @@ pub fn curriculum_snapshots(
     }
     annotate(
         &mut montage,
-        &[(8, 4, "curriculum classification over time — green easy, yellow frontier, red hard, purple neither".into(), 18)],
+        &[(
+            8,
+            4,
+            "curriculum classification over time — green easy, yellow frontier, red hard, purple neither".into(),
+            18,
+        )],
     )?;
     if let Some(dir) = path.parent() {
         std::fs::create_dir_all(dir).map_err(|e| ExperimentError::file(dir, e))?;

@@ -92,11 +92,7 @@ pub fn aggregate(results: &[EpisodeResult], oracle: &BTreeMap<u32, f64>) -> Tabl
         let v: Vec<f64> = rows.iter().filter(|r| f(r.point)).map(|r| r.mean).collect();
         (!v.is_empty()).then(|| mean(&v))
     };
-    Table {
-        avg_int: avg(&|p| INTERIOR.contains(&p)),
-        avg_ext: avg(&|p| !INTERIOR.contains(&p)),
-        rows,
-    }
+    Table { avg_int: avg(&|p| INTERIOR.contains(&p)), avg_ext: avg(&|p| !INTERIOR.contains(&p)), rows }
 }
 
 impl Table {
@@ -105,7 +101,11 @@ impl Table {
     pub fn render(&self, title: &str) -> String {
         let mut s = String::new();
         let _ = writeln!(s, "{title}");
-        let _ = writeln!(s, "{:>5} | {:>16} | {:>7} | {:>7} | {:>8}", "point", "return mean ± std", "success", "oracle", "episodes");
+        let _ = writeln!(
+            s,
+            "{:>5} | {:>16} | {:>7} | {:>7} | {:>8}",
+            "point", "return mean ± std", "success", "oracle", "episodes"
+        );
         let _ = writeln!(s, "{}", "-".repeat(56));
         for r in &self.rows {
             let oracle = r.oracle.map_or("—".to_string(), |o| format!("{o:.1}"));
@@ -161,8 +161,14 @@ mod tests {
         // Point 0: returns 2, 4, 9 → mean 5, population var ((9 + 1 + 16)/3) = 26/3, std 2.9439.
         // Point 1: returns −10, −20 → mean −15, std 5.
         // Point 9: return −30 → mean −30, std 0.
-        let results =
-            vec![r(0, 2.0, true), r(0, 4.0, true), r(0, 9.0, false), r(1, -10.0, false), r(1, -20.0, true), r(9, -30.0, false)];
+        let results = vec![
+            r(0, 2.0, true),
+            r(0, 4.0, true),
+            r(0, 9.0, false),
+            r(1, -10.0, false),
+            r(1, -20.0, true),
+            r(9, -30.0, false),
+        ];
         let oracle = BTreeMap::from([(0, 4.5), (1, -3.0)]);
         let t = aggregate(&results, &oracle);
         assert_eq!(t.rows.len(), 3);

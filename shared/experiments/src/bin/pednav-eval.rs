@@ -129,7 +129,8 @@ fn main() -> Result<()> {
     if let Some(k) = cli.shard {
         // Worker: run a shard, write JSON.
         let mine = protocol::shard(&all, k, cli.of);
-        let mut ev = Evaluator::new(cfg.scene()?, &cfg.sim, cli.t_max, gamma, cli.envs, kind(&cli), nets, cli.seed ^ k as u64)?;
+        let mut ev =
+            Evaluator::new(cfg.scene()?, &cfg.sim, cli.t_max, gamma, cli.envs, kind(&cli), nets, cli.seed ^ k as u64)?;
         let results = ev.run(&mine, |_| {})?;
         let out = cli.shard_out.as_ref().context("--shard needs --shard-out")?;
         std::fs::write(out, serde_json::to_vec(&results)?)?;
@@ -198,10 +199,17 @@ fn main() -> Result<()> {
     plots::trajectories(&cfg.scene()?, &results, &policy_name, &out.join("trajectories.png"))?;
     for spec in &cli.gif {
         let task = gif_task(spec, &all)?;
-        let mut ev = Evaluator::new(cfg.scene()?, &cfg.sim, cli.t_max, gamma, 1, kind(&cli), setup(&cli)?.1, task.seed)?;
+        let mut ev =
+            Evaluator::new(cfg.scene()?, &cfg.sim, cli.t_max, gamma, 1, kind(&cli), setup(&cli)?.1, task.seed)?;
         let path = out.join(format!("episode-p{}-y{}-r{}.gif", task.point, task.yaw_deg, task.run));
         let r = ev.record_gif(task, &path)?;
-        eprintln!("wrote {} (return {:.2}, {} steps, success {})", path.display(), r.discounted_return, r.steps, r.success);
+        eprintln!(
+            "wrote {} (return {:.2}, {} steps, success {})",
+            path.display(),
+            r.discounted_return,
+            r.steps,
+            r.success
+        );
     }
     eprintln!("wrote {}/{{table.txt,table.csv,results.csv,trajectories.png}}", out.display());
     Ok(())
@@ -209,7 +217,9 @@ fn main() -> Result<()> {
 
 fn gif_task(spec: &str, all: &[EvalTask]) -> Result<EvalTask> {
     let parts: Vec<&str> = spec.split(':').collect();
-    let parse = || -> Option<(u32, f32, u32)> { Some((parts.first()?.parse().ok()?, parts.get(1)?.parse().ok()?, parts.get(2)?.parse().ok()?)) };
+    let parse = || -> Option<(u32, f32, u32)> {
+        Some((parts.first()?.parse().ok()?, parts.get(1)?.parse().ok()?, parts.get(2)?.parse().ok()?))
+    };
     let (p, y, r) = parse().with_context(|| format!("--gif expects POINT:YAW:RUN, got `{spec}`"))?;
     all.iter()
         .find(|t| t.point == p && t.yaw_deg == y && t.run == r)

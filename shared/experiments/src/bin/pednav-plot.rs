@@ -19,7 +19,10 @@ use pednav_sim::oracle::{Oracle, OracleConfig};
 use pednav_sim::{ObsMode, Pose, SimConfig, SimWorld};
 
 #[derive(Parser)]
-#[command(version, about = "Plots of pednav runs: training curves (Fig. 3), curriculum snapshots (Fig. 4), comparisons")]
+#[command(
+    version,
+    about = "Plots of pednav runs: training curves (Fig. 3), curriculum snapshots (Fig. 4), comparisons"
+)]
 struct Cli {
     #[command(subcommand)]
     command: Cmd,
@@ -74,11 +77,13 @@ enum Cmd {
 /// (decision steps, discounted return) of every episode of a run.
 fn episodes(run: &Path) -> Result<Vec<(f64, f64)>> {
     let path = run.join("metrics").join("episodes.csv");
-    let text = std::fs::read_to_string(&path)
-        .with_context(|| format!("{}: no episode log (the curriculum service writes it during a run)", path.display()))?;
+    let text = std::fs::read_to_string(&path).with_context(|| {
+        format!("{}: no episode log (the curriculum service writes it during a run)", path.display())
+    })?;
     let mut lines = text.lines();
     let header: Vec<&str> = lines.next().context("empty episode log")?.split(',').collect();
-    let col = |n: &str| header.iter().position(|h| *h == n).with_context(|| format!("{}: no `{n}` column", path.display()));
+    let col =
+        |n: &str| header.iter().position(|h| *h == n).with_context(|| format!("{}: no `{n}` column", path.display()));
     let (cs, cr) = (col("decision_steps")?, col("discounted_return")?);
     let rows: Vec<(f64, f64)> = lines
         .filter_map(|l| {
@@ -128,8 +133,20 @@ fn curves(run: &Path, out: &Path, window: usize) -> Result<()> {
         "decision steps",
         "discounted return",
         &[
-            Series { label: "episodes".into(), points: steps.iter().copied().zip(ret.iter().copied()).collect(), band: None, colour: PALETTE[0], dots: true },
-            Series { label: format!("moving average ({window} episodes)"), points: steps.iter().copied().zip(smooth).collect(), band: None, colour: PALETTE[0], dots: false },
+            Series {
+                label: "episodes".into(),
+                points: steps.iter().copied().zip(ret.iter().copied()).collect(),
+                band: None,
+                colour: PALETTE[0],
+                dots: true,
+            },
+            Series {
+                label: format!("moving average ({window} episodes)"),
+                points: steps.iter().copied().zip(smooth).collect(),
+                band: None,
+                colour: PALETTE[0],
+                dots: false,
+            },
         ],
         &oracle_lines(&cfg)?,
     )?;
@@ -138,10 +155,21 @@ fn curves(run: &Path, out: &Path, window: usize) -> Result<()> {
         &format!("{name}: episodes vs decision steps (steeper is better)"),
         "decision steps",
         "episodes",
-        &[Series { label: "episodes".into(), points: steps.iter().enumerate().map(|(i, &s)| (s, i as f64 + 1.0)).collect(), band: None, colour: PALETTE[1], dots: false }],
+        &[Series {
+            label: "episodes".into(),
+            points: steps.iter().enumerate().map(|(i, &s)| (s, i as f64 + 1.0)).collect(),
+            band: None,
+            colour: PALETTE[1],
+            dots: false,
+        }],
         &[],
     )?;
-    println!("wrote {}/training_return.png and episodes.png ({} episodes, {:.0} decision steps)", out.display(), eps.len(), steps.last().unwrap());
+    println!(
+        "wrote {}/training_return.png and episodes.png ({} episodes, {:.0} decision steps)",
+        out.display(),
+        eps.len(),
+        steps.last().unwrap()
+    );
     Ok(())
 }
 
@@ -168,7 +196,8 @@ fn curriculum(run: &Path, out: &Path, max: usize) -> Result<()> {
 fn compare(groups: &[String], out: &Path, window: usize) -> Result<()> {
     let mut series = Vec::new();
     for (gi, g) in groups.iter().enumerate() {
-        let (label, runs) = g.split_once('=').with_context(|| format!("--group expects LABEL=RUN[,RUN…], got `{g}`"))?;
+        let (label, runs) =
+            g.split_once('=').with_context(|| format!("--group expects LABEL=RUN[,RUN…], got `{g}`"))?;
         let runs: Vec<&str> = runs.split(',').filter(|s| !s.is_empty()).collect();
         let curves: Vec<Vec<(f64, f64)>> = runs
             .iter()
@@ -184,10 +213,8 @@ fn compare(groups: &[String], out: &Path, window: usize) -> Result<()> {
         let mut mean = Vec::new();
         let mut std = Vec::new();
         for &x in &grid {
-            let vals: Vec<f64> = curves
-                .iter()
-                .filter_map(|c| c.iter().take_while(|p| p.0 <= x).last().map(|p| p.1))
-                .collect();
+            let vals: Vec<f64> =
+                curves.iter().filter_map(|c| c.iter().take_while(|p| p.0 <= x).last().map(|p| p.1)).collect();
             if vals.is_empty() {
                 mean.push(f64::NAN);
                 std.push(0.0);
@@ -206,7 +233,14 @@ fn compare(groups: &[String], out: &Path, window: usize) -> Result<()> {
             dots: false,
         });
     }
-    plots::line_chart(out, "discounted return, mean ± std over runs", "decision steps", "discounted return (smoothed)", &series, &[])?;
+    plots::line_chart(
+        out,
+        "discounted return, mean ± std over runs",
+        "decision steps",
+        "discounted return (smoothed)",
+        &series,
+        &[],
+    )?;
     println!("wrote {}", out.display());
     Ok(())
 }

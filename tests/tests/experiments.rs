@@ -1,0 +1,127 @@
+//! The evaluation and plotting commands, run as a user runs them: on the oracle
+//! (whose evaluation must reproduce the planner's own returns — an independent
+//! check of the evaluator's batching and bookkeeping) and on a tiny real run.
+
+use std::path::Path;
+use std::process::Command;
+use std::time::Duration;
+
+use pednav_tests::{binary, scratch_dir, workspace_root};
+
+fn eval_bin() -> std::path::PathBuf {
+    binary("pednav-experiments", "shared/experiments", "pednav-eval")
+}
+
+fn ok(cmd: &mut Command) -> String {
+    let out = cmd.output().expect("run the command");
+    assert!(out.status.success(), "{cmd:?} failed:\n{}", String::from_utf8_lossy(&out.stderr));
+    String::from_utf8_lossy(&out.stdout).into_owned()
+}
+
+fn csv_rows(path: &Path) -> Vec<Vec<String>> {
+    std::fs::read_to_string(path)
+        .unwrap_or_else(|e| panic!("{}: {e}", path.display()))
+        .lines()
+        .skip(1)
+        .map(|l| l.split(',').map(str::to_string).collect())
+        .collect()
+}
+
+fn assert_picture(path: &Path, min_w: u32) {
+    let img = image::open(path).unwrap_or_else(|e| panic!("{}: {e}", path.display())).to_rgb8();
+    assert!(img.width() >= min_w, "{} is {}×{}", path.display(), img.width(), img.height());
+    let first = img.get_pixel(0, 0);
+    let differing = img.pixels().filter(|p| p != &first).count();
+    assert!(differing > (img.width() * img.height()) as usize / 20, "{} is nearly blank", path.display());
+}
+
+#[test]
+fn evaluating_the_oracle_reproduces_its_planned_returns() {
+    let out = scratch_dir("eval-oracle");
+    let stdout =
+        ok(Command::new(eval_bin()).args(["--policy", "oracle", "--runs", "1", "--out", out.to_str().unwrap()]));
+    assert!(stdout.contains("Avg.Int") && stdout.contains("Avg.Ext"), "{stdout}");
+    let rows = csv_rows(&out.join("table.csv"));
+    let points: Vec<&Vec<String>> = rows.iter().filter(|r| r[0].parse::<u32>().is_ok()).collect();
+    assert_eq!(points.len(), 14, "one row per validation point");
+    for r in &points {
+        let (mean, success, oracle): (f64, f64, f64) =
+            (r[2].parse().unwrap(), r[4].parse().unwrap(), r[5].parse().unwrap());
+        assert_eq!(r[1], "8", "8 yaws × 1 run");
+        assert!((mean - oracle).abs() < 1e-3, "point {}: evaluated {mean} vs planned {oracle}", r[0]);
+        assert_eq!(success, 1.0, "the oracle reaches the goal from point {}", r[0]);
+    }
+    // Points 0 and 7 bracket the interior difficulty (DESIGN: ≈ +4 and ≈ −23 at their best yaw).
+    let mean_of = |p: &str| points.iter().find(|r| r[0] == p).unwrap()[2].parse::<f64>().unwrap();
+    assert!(mean_of("0") > mean_of("7") + 15.0);
+    assert_eq!(csv_rows(&out.join("results.csv")).len(), 112);
+    assert_picture(&out.join("trajectories.png"), 400);
+}
+
+#[test]
+fn a_tiny_run_can_be_evaluated_and_plotted() {
+    let root = scratch_dir("experiments-run");
+    let smoke = std::fs::read_to_string(workspace_root().join("deploy/configs/smoke.toml")).unwrap();
+    let config = root.join("tiny.toml");
+    std::fs::write(&config, format!("{smoke}max_updates = 30\n")).unwrap();
+    let run = root.join("run");
+    let bins = [
+        ("pednav-runtime", "shared/runtime", "pednav-run"),
+        ("pednav-actor", "actor", "pednav-actor"),
+        ("pednav-learner-process", "learner/process", "pednav-learner"),
+        ("pednav-curriculum-service", "curriculum-service/process", "pednav-curriculum"),
+        ("pednav-experiments", "shared/experiments", "pednav-plot"),
+    ];
+    let paths: Vec<_> = bins.iter().map(|(p, d, b)| binary(p, d, b)).collect();
+    let bin_dir = paths[0].parent().unwrap();
+    let mut child = Command::new(workspace_root().join("deploy/run_local.sh"))
+        .args(["--actors", "1", "--config", config.to_str().unwrap(), "--run-dir", run.to_str().unwrap()])
+        .env("PEDNAV_SKIP_BUILD", "1")
+        .env("PEDNAV_BIN_DIR", bin_dir)
+        .stderr(std::fs::File::create(root.join("launcher.log")).unwrap())
+        .spawn()
+        .unwrap();
+    let start = std::time::Instant::now();
+    let status = loop {
+        if let Some(s) = child.try_wait().unwrap() {
+            break s;
+        }
+        assert!(start.elapsed() < Duration::from_secs(600), "watchdog: the tiny run did not finish");
+        std::thread::sleep(Duration::from_millis(200));
+    };
+    assert!(status.success(), "the tiny run failed: {}", std::fs::read_to_string(root.join("launcher.log")).unwrap());
+
+    // Fig. 3 and Fig. 4 from the run directory.
+    ok(Command::new(&paths[4]).args(["all", "--run-dir", run.to_str().unwrap()]));
+    assert_picture(&run.join("plots/training_return.png"), 800);
+    assert_picture(&run.join("plots/episodes.png"), 800);
+    assert_picture(&run.join("plots/curriculum_snapshots.png"), 300);
+    let cmp = root.join("compare.png");
+    let group = format!("smoke={},{}", run.display(), run.display());
+    ok(Command::new(&paths[4]).args(["compare", "--group", &group, "--out", cmp.to_str().unwrap()]));
+    assert_picture(&cmp, 800);
+
+    // The validation protocol on its checkpoint, over two worker processes, short episodes.
+    let out = root.join("eval");
+    let stdout = ok(Command::new(eval_bin()).args([
+        "--run-dir",
+        run.to_str().unwrap(),
+        "--runs",
+        "1",
+        "--t-max",
+        "40",
+        "--workers",
+        "2",
+        "--no-oracle",
+        "--out",
+        out.to_str().unwrap(),
+    ]));
+    assert!(stdout.contains("Avg.Int"), "{stdout}");
+    let results = csv_rows(&out.join("results.csv"));
+    assert_eq!(results.len(), 112, "14 points × 8 yaws × 1 run");
+    for r in &results {
+        let steps: u32 = r[5].parse().unwrap();
+        assert!((1..=40).contains(&steps), "T_max respected: {r:?}");
+    }
+    assert_picture(&out.join("trajectories.png"), 400);
+}
