@@ -132,7 +132,6 @@ fn main() -> Result<()> {
         );
     }
     let mut counters = Counters::default();
-    let mut seq = 0u64;
     let mut episodes: Vec<Option<Episode>> = (0..m).map(|_| None).collect();
     let mut next_episode = 0u64;
     let all: Vec<usize> = (0..m).collect();
@@ -176,26 +175,21 @@ fn main() -> Result<()> {
                     flags: step_flags::FIRST,
                     episode: ep.id,
                     policy_version: version,
-                    seq,
+                    seq: counters.steps,
                     ..StepHeader::default()
                 };
                 let sent = send_step(
                     &steps_out,
                     header,
                     obs_bytes,
-                    |dst| match &frames {
-                        Some(f) => f.copy_frame_uninit(e, dst),
-                        None => write_state(&states[e], dst),
-                    },
+                    |dst| write_observation(frames.as_ref(), &states, e, dst),
                     &stop,
                 )?;
                 let Some(bytes) = sent else { break 'run };
                 if pixels {
                     stream.reset(e, &bytes)?;
                 }
-                counters.checksum = counters.checksum.wrapping_add(record_crc(&header, &bytes));
-                counters.steps += 1;
-                seq += 1;
+                counters.sent(&header, &bytes);
             }
             drop(frames);
             t_send += t0.elapsed().as_secs_f64();
@@ -274,25 +268,20 @@ fn main() -> Result<()> {
                 reward: t.reward,
                 action: actions[e],
                 policy_version: version,
-                seq,
+                seq: counters.steps,
             };
             let sent = send_step(
                 &steps_out,
                 header,
                 obs_bytes,
-                |dst| match &frames {
-                    Some(f) => f.copy_frame_uninit(e, dst),
-                    None => write_state(&states[e], dst),
-                },
+                |dst| write_observation(frames.as_ref(), &states, e, dst),
                 &stop,
             )?;
             let Some(bytes) = sent else { break 'run };
             if pixels && !(t.terminated || t.truncated) {
                 stream.push(e, actions[e], t.reward, &bytes)?;
             }
-            counters.checksum = counters.checksum.wrapping_add(record_crc(&header, &bytes));
-            counters.steps += 1;
-            seq += 1;
+            counters.sent(&header, &bytes);
             ep.points.push(EpisodePoint { x: t.pose.x, y: t.pose.y, yaw: t.pose.yaw, reward: t.reward });
             ep.discounted += ep.discount * t.reward as f64;
             ep.discount *= cfg.dsac.gamma;
@@ -374,18 +363,29 @@ fn main() -> Result<()> {
     )
 }
 
-fn mean(v: &VecDeque<f32>) -> f32 {
-    if v.is_empty() { f32::NAN } else { v.iter().sum::<f32>() / v.len() as f32 }
+impl Counters {
+    /// Account for a sent record; the sequence number of the next one is `steps`.
+    fn sent(&mut self, header: &StepHeader, observation: &[u8]) {
+        self.checksum = self.checksum.wrapping_add(header.record_crc(observation));
+        self.steps += 1;
+    }
 }
 
-/// CRC of a record as the learner recomputes it: header fields that identify it, then the observation bytes.
-fn record_crc(h: &StepHeader, bytes: &[u8]) -> u32 {
-    let mut c = crc32fast::Hasher::new();
-    c.update(&h.seq.to_le_bytes());
-    c.update(&h.episode.to_le_bytes());
-    c.update(&h.step.to_le_bytes());
-    c.update(bytes);
-    c.finalize()
+/// Write environment `e`'s observation: its frame from the batch render, or its state vector.
+fn write_observation(
+    frames: Option<&pednav_sim::Frames<'_>>,
+    states: &[[f32; pednav_sim::STATE_OBS_DIM]],
+    e: usize,
+    dst: &mut [std::mem::MaybeUninit<u8>],
+) {
+    match frames {
+        Some(f) => f.copy_frame_uninit(e, dst),
+        None => write_state(&states[e], dst),
+    }
+}
+
+fn mean(v: &VecDeque<f32>) -> f32 {
+    if v.is_empty() { f32::NAN } else { v.iter().sum::<f32>() / v.len() as f32 }
 }
 
 fn write_state(state: &[f32], dst: &mut [std::mem::MaybeUninit<u8>]) {

@@ -53,15 +53,6 @@ struct StreamTally {
     gaps: u64,
 }
 
-fn record_crc(h: &StepHeader, bytes: &[u8]) -> u32 {
-    let mut c = crc32fast::Hasher::new();
-    c.update(&h.seq.to_le_bytes());
-    c.update(&h.episode.to_le_bytes());
-    c.update(&h.step.to_le_bytes());
-    c.update(bytes);
-    c.finalize()
-}
-
 struct Learner {
     dsac: Dsac,
     limiter: RateLimiter,
@@ -95,7 +86,7 @@ impl Learner {
         }
         tally.last_seq = Some(h.seq);
         tally.records += 1;
-        tally.checksum = tally.checksum.wrapping_add(record_crc(h, bytes));
+        tally.checksum = tally.checksum.wrapping_add(h.record_crc(bytes));
         self.received += 1;
         let state: Vec<f32>;
         let frame = match self.kind {

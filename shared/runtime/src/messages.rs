@@ -55,6 +55,17 @@ impl StepHeader {
         self.flags & flag != 0
     }
 
+    /// CRC-32 of a record as sender and receiver both compute it (sequence number,
+    /// episode, step, then the observation bytes), to check a stream end to end.
+    pub fn record_crc(&self, observation: &[u8]) -> u32 {
+        let mut c = crc32fast::Hasher::new();
+        c.update(&self.seq.to_le_bytes());
+        c.update(&self.episode.to_le_bytes());
+        c.update(&self.step.to_le_bytes());
+        c.update(observation);
+        c.finalize()
+    }
+
     /// The replay stream this record belongs to: one per (actor, env, incarnation).
     pub fn stream(&self) -> u64 {
         ((self.actor as u64) << 40) | ((self.incarnation as u64 & 0xFF_FFFF) << 16) | (self.env as u64 & 0xFFFF)
