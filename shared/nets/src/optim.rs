@@ -118,9 +118,15 @@ impl AdamW {
         let bc2 = 1.0 - c.beta2.powi(t);
         for (((_, p), m), v) in self.params.iter().zip(&mut self.m).zip(&mut self.v) {
             let Some(g) = grads.get(p.as_tensor()) else { continue };
-            let g = if clip < 1.0 { (g * clip)? } else { g.clone() };
-            *m = ((&*m * c.beta1)? + (&g * (1.0 - c.beta1))?)?;
-            *v = ((&*v * c.beta2)? + (g.sqr()? * (1.0 - c.beta2))?)?;
+            // Gradients come out of `backward` still attached to the update's graph
+            // (they are built from ops on tracked tensors). Detached, the moments hold
+            // plain values; attached, every step's moments would keep the previous
+            // step's moments and its whole forward/backward graph alive — memory
+            // would grow by the size of one update's graph per step.
+            let g = g.detach();
+            let g = if clip < 1.0 { (g * clip)? } else { g };
+            *m = ((&*m * c.beta1)? + (&g * (1.0 - c.beta1))?)?.detach();
+            *v = ((&*v * c.beta2)? + (g.sqr()? * (1.0 - c.beta2))?)?.detach();
             let m_hat = (&*m / bc1)?;
             let v_hat = (&*v / bc2)?;
             let update = (m_hat / (v_hat.sqrt()? + c.eps)?)?;
