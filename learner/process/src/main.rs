@@ -23,6 +23,7 @@ use candle_core::Device;
 use clap::Parser;
 use pednav_learner::{Dsac, DualReplay, Frame, FrameKind, RateLimiter, Step, load_checkpoint, save_checkpoint};
 use pednav_nets::init_cpu_runtime;
+use pednav_runtime::ipc::receive_step_round;
 use pednav_runtime::messages::{Heartbeat, StepHeader, WeightsHeader, process_kind, step_flags};
 use pednav_runtime::{Ipc, Metrics, RunDir, StopFlag, run_prefix, weights};
 use pednav_sim::ObsMode;
@@ -206,20 +207,25 @@ fn main() -> Result<()> {
         save_checkpoint(&ckpt, &mut l.dsac, Some(l.limiter), extra)?;
         Ok(())
     };
+    let mut round = Vec::new();
     loop {
         if stop.is_set() {
             break;
         }
         // Inserts, as far as the replay ratio allows (always while refilling).
+        // One round takes at most STEP_ROUND_PER_ACTOR records from every actor, so
+        // no actor starves while another's queue is always full.
         let mut took = 0;
         while took < 512 && (l.limiter.can_insert() || l.refilling() || budget_spent.is_some()) {
-            let Some(sample) = steps_in.receive().map_err(|e| anyhow::anyhow!("step subscriber: {e:?}"))? else {
+            if receive_step_round(&steps_in, &mut round)? == 0 {
                 break;
-            };
-            let h = *sample.user_header();
-            l.take(&h, sample.payload())?;
-            received_total += 1;
-            took += 1;
+            }
+            for sample in round.drain(..) {
+                let h = *sample.user_header();
+                l.take(&h, sample.payload())?;
+                received_total += 1;
+                took += 1;
+            }
         }
         // One update when the data allows it.
         if budget_spent.is_none() && !l.refilling() && l.limiter.can_update() {

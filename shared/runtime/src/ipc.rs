@@ -8,6 +8,8 @@
 //!   `RetryUntilDelivered`, with a bounded give-up (the publisher stops retrying
 //!   once [`Ipc::give_up`] has passed or the process was asked to stop), so a dead
 //!   learner cannot wedge an actor forever;
+//! - the learner's intake is fair across actors ([`receive_step_round`]): no
+//!   actor waits on its full queue while another's is served;
 //! - weights and heartbeats are lossy by design (newest wins; history 1 for
 //!   weights so an actor that starts late still gets the current version).
 //!
@@ -51,8 +53,15 @@ pub type HeartbeatPublisher = Publisher<ipc::Service, Heartbeat, ()>;
 /// Heartbeat subscriber (the launcher's progress line, tests).
 pub type HeartbeatSubscriber = Subscriber<ipc::Service, Heartbeat, ()>;
 
+/// A received step record, borrowed from the sending actor's shared memory until dropped.
+pub type StepSample = iceoryx2::sample::Sample<ipc::Service, [u8], StepHeader>;
+
 /// Most actor processes a run may have alive at once (sizes the services).
 pub const MAX_ACTORS: usize = 64;
+/// Step records the learner may hold from one actor at once, and so one actor's
+/// share of a [`receive_step_round`]. 2 is iceoryx2's default, so a step service
+/// created by a binary that did not set it explicitly stays compatible.
+pub const STEP_ROUND_PER_ACTOR: usize = 2;
 /// Episode reports the curriculum service may have queued per actor.
 const EPISODE_BUFFER: usize = 256;
 
@@ -74,6 +83,27 @@ fn ipc_err(what: &str, e: impl std::fmt::Debug) -> RuntimeError {
 
 fn service_name(name: &str) -> Result<ServiceName> {
     ServiceName::new(name).map_err(|e| ipc_err(name, e))
+}
+
+/// Receive one round of step records, fair across actors: at most
+/// [`STEP_ROUND_PER_ACTOR`] from every actor that has records waiting. Returns how
+/// many `round` now holds (appended; the caller drops them once consumed).
+///
+/// Why rounds: iceoryx2's `receive` always serves the first publisher that has
+/// data. A learner that takes records more slowly than the actors send them — the
+/// normal case, the replay ratio holds inserts back — would drain one actor's
+/// always-full queue forever while every other actor blocks on its full queue
+/// until it gives up (`runtime.give_up_secs`) and dies. Holding a round's samples
+/// until the round ends makes `receive` pass over an actor whose borrow limit is
+/// reached, so every actor with data gets its share in every round.
+pub fn receive_step_round(sub: &StepSubscriber, round: &mut Vec<StepSample>) -> Result<usize> {
+    loop {
+        match sub.receive() {
+            Ok(Some(sample)) => round.push(sample),
+            Ok(None) | Err(iceoryx2::port::ReceiveError::ExceedsMaxBorrows) => return Ok(round.len()),
+            Err(e) => return Err(ipc_err("step subscriber", e)),
+        }
+    }
 }
 
 /// A lossless publisher together with its service, so the sender can see whether
@@ -196,6 +226,7 @@ impl Ipc {
             .user_header::<StepHeader>()
             .enable_safe_overflow(false)
             .subscriber_max_buffer_size(self.step_buffer)
+            .subscriber_max_borrowed_samples(STEP_ROUND_PER_ACTOR)
             .history_size(0)
             .max_publishers(MAX_ACTORS)
             .max_subscribers(2)
