@@ -23,7 +23,7 @@ use candle_core::Device;
 use clap::Parser;
 use pednav_learner::{Dsac, DualReplay, Frame, FrameKind, RateLimiter, Step, load_checkpoint, save_checkpoint};
 use pednav_nets::init_cpu_runtime;
-use pednav_runtime::ipc::receive_step_round;
+use pednav_runtime::ipc::{StepSample, StepSubscriber, receive_step_round};
 use pednav_runtime::messages::{Heartbeat, StepHeader, WeightsHeader, process_kind, step_flags};
 use pednav_runtime::{Ipc, Metrics, RunDir, StopFlag, run_prefix, weights};
 use pednav_sim::ObsMode;
@@ -109,6 +109,17 @@ impl Learner {
             self.limiter.inserted(1);
         }
         Ok(())
+    }
+
+    /// Receive one fair round of step records ([`receive_step_round`]) and take
+    /// them all into the replay; returns how many there were (0: nothing waiting).
+    fn take_round(&mut self, steps_in: &StepSubscriber, round: &mut Vec<StepSample>) -> Result<u64> {
+        receive_step_round(steps_in, round)?;
+        let n = round.len() as u64;
+        for sample in round.drain(..) {
+            self.take(sample.user_header(), sample.payload())?;
+        }
+        Ok(n)
     }
 
     fn refilling(&self) -> bool {
@@ -217,15 +228,12 @@ fn main() -> Result<()> {
         // no actor starves while another's queue is always full.
         let mut took = 0;
         while took < 512 && (l.limiter.can_insert() || l.refilling() || budget_spent.is_some()) {
-            if receive_step_round(&steps_in, &mut round)? == 0 {
+            let n = l.take_round(&steps_in, &mut round)?;
+            if n == 0 {
                 break;
             }
-            for sample in round.drain(..) {
-                let h = *sample.user_header();
-                l.take(&h, sample.payload())?;
-                received_total += 1;
-                took += 1;
-            }
+            received_total += n;
+            took += n;
         }
         // One update when the data allows it.
         if budget_spent.is_none() && !l.refilling() && l.limiter.can_update() {
@@ -331,13 +339,9 @@ fn main() -> Result<()> {
     // Drain what the actors already sent (they are stopped first by the launcher).
     let drain_until = Instant::now() + Duration::from_millis(500);
     while Instant::now() < drain_until {
-        match steps_in.receive().map_err(|e| anyhow::anyhow!("step subscriber: {e:?}"))? {
-            Some(sample) => {
-                let h = *sample.user_header();
-                l.take(&h, sample.payload())?;
-                received_total += 1;
-            }
-            None => std::thread::sleep(Duration::from_millis(10)),
+        match l.take_round(&steps_in, &mut round)? {
+            0 => std::thread::sleep(Duration::from_millis(10)),
+            n => received_total += n,
         }
     }
     save(&mut l, received_total)?;
