@@ -172,8 +172,12 @@ impl Dsac {
         let bsz = batch.action.dims()[0];
         let eta = &batch.weight;
 
+        // Encoders: o_t (with gradients) and o_{t+1} (for the TD target) in one pass
+        // over each transition's frames where the encoder allows it.
+        let features = nets.transition_features(&batch.obs, &batch.next_obs, batch.window.as_ref())?;
+        let (next_policy_features, next_fraction_features) = (features.next_policy, features.next_fraction);
+
         // TD target (no gradients).
-        let (next_policy_features, next_fraction_features) = nets.policy_and_fraction_features(&batch.next_obs)?;
         let next_policy = nets.policy.head(&next_policy_features.detach())?;
         let next = next_policy.sample(&standard_normal(&mut self.rng, bsz, &dev)?)?;
         let (a_next, logp_next) = (next.action.detach(), next.log_prob.detach());
@@ -189,7 +193,7 @@ impl Dsac {
             .detach();
 
         // Critic.
-        let feats = nets.online_features(&batch.obs)?;
+        let feats = features.online;
         let fr = nets.fraction.fractions(&feats.fraction, &batch.action)?;
         let hats = fr.hats.detach();
         let grid = nets.quantile.grid(&feats.quantile, &batch.action)?;

@@ -191,6 +191,10 @@ pub struct Batch {
     pub obs: Obs,
     /// Next observations o_{t+1}.
     pub next_obs: Obs,
+    /// Pixel batches: the N_h + 1 frames (B, N_h + 1, H, W) of each transition, o_t's
+    /// then o_{t+1}'s newest (o_t = the first N_h, o_{t+1} = the last N_h), so the
+    /// 3D-TCN can encode both in one pass ([`pednav_nets::Encoder::encode_transition`]).
+    pub window: Option<Tensor>,
     /// Actions a_t (B, 3).
     pub action: Tensor,
     /// Rewards r_t (B).
@@ -474,6 +478,7 @@ struct BatchBuilder {
     b: usize,
     obs_frames: Vec<f32>,
     next_frames: Vec<f32>,
+    window_frames: Vec<f32>,
     obs_actions: Vec<f32>,
     next_actions: Vec<f32>,
     obs_rewards: Vec<f32>,
@@ -492,6 +497,7 @@ impl BatchBuilder {
             b,
             obs_frames: Vec::with_capacity(b * n * fl),
             next_frames: Vec::with_capacity(b * n * fl),
+            window_frames: Vec::with_capacity(b * (n + 1) * fl),
             obs_actions: Vec::with_capacity(b * n * ACTION_DIM),
             next_actions: Vec::with_capacity(b * n * ACTION_DIM),
             obs_rewards: Vec::with_capacity(b * n),
@@ -508,6 +514,7 @@ impl BatchBuilder {
         let (n, fl) = (self.n, self.fl);
         self.obs_frames.extend_from_slice(&frames[..n * fl]);
         self.next_frames.extend_from_slice(&frames[fl..]);
+        self.window_frames.extend_from_slice(frames);
         self.obs_actions.extend(acts[..n - 1].iter().flatten());
         self.next_actions.extend(acts[1..].iter().flatten());
         self.obs_rewards.extend_from_slice(&rews[..n - 1]);
@@ -530,9 +537,14 @@ impl BatchBuilder {
                 FrameKind::State { dim } => Obs::State(Tensor::from_vec(frames, (b, dim), dev)?),
             })
         };
+        let window = match kind {
+            FrameKind::Pixels { size } => Some(Tensor::from_vec(self.window_frames, (b, n + 1, size, size), dev)?),
+            FrameKind::State { .. } => None,
+        };
         Ok(Batch {
             obs: obs(self.obs_frames, self.obs_actions, self.obs_rewards)?,
             next_obs: obs(self.next_frames, self.next_actions, self.next_rewards)?,
+            window,
             action: Tensor::from_vec(self.action, (b, ACTION_DIM), dev)?,
             reward: Tensor::from_vec(self.reward, b, dev)?,
             done: Tensor::from_vec(self.done, b, dev)?,

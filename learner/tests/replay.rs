@@ -154,6 +154,17 @@ proptest! {
                 let act: Vec<Vec<f32>> = batch.action.to_vec2().unwrap();
                 let rew: Vec<f32> = batch.reward.to_vec1().unwrap();
                 let done: Vec<f32> = batch.done.to_vec1().unwrap();
+                // The transition window is o_t's frames then o_{t+1}'s newest.
+                let (Obs::Pixels { frames: f0, .. }, Obs::Pixels { frames: f1, .. }) = (&batch.obs, &batch.next_obs) else {
+                    panic!("pixel observations expected")
+                };
+                let window = batch.window.as_ref().expect("pixel batches carry the transition window");
+                let joined = candle_core::Tensor::cat(&[f0, &f1.narrow(1, history - 1, 1).unwrap()], 1).unwrap();
+                prop_assert_eq!(window.flatten_all().unwrap().to_vec1::<f32>().unwrap(), joined.flatten_all().unwrap().to_vec1::<f32>().unwrap());
+                prop_assert_eq!(
+                    window.narrow(1, 1, history).unwrap().flatten_all().unwrap().to_vec1::<f32>().unwrap(),
+                    f1.flatten_all().unwrap().to_vec1::<f32>().unwrap()
+                );
                 for i in 0..8 {
                     check_sample(&batch.obs, &batch.next_obs, i, history, done[i], &act[i], rew[i], &terminal_at);
                     prop_assert_eq!(done[i] == 1.0, i < batch.n_terminal);

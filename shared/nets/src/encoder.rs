@@ -139,12 +139,20 @@ impl TcnEncoder {
 
     /// Features of the frames alone: (B, 64·s·s).
     pub(crate) fn encode_frames(&self, frames: &Tensor) -> Result<Tensor> {
+        let b = frames.dims()[0];
+        Ok(self.encode_frames_steps(frames)?.reshape((b, ()))?)
+    }
+
+    /// The frame layers over (B, T, H, W): (B, T − N_h + 1, 64·s·s), one feature
+    /// vector per window of N_h consecutive frames.
+    fn encode_frames_steps(&self, frames: &Tensor) -> Result<Tensor> {
         let (b, t, h, w) = frames.dims4()?;
         let mut x = frames.reshape((b, t, h, w, 1))?;
         for layer in &self.frames {
             x = layer.forward(&x)?;
         }
-        Ok(x.reshape((b, ()))?)
+        let steps = x.dims()[1];
+        Ok(x.reshape((b, steps, ()))?)
     }
 
     /// Features of the action and reward histories: (B, 2·history_features).
@@ -219,6 +227,45 @@ impl Encoder {
             Encoder::Tcn(e) => e.out_dim,
             Encoder::FrameStack(e) => e.out_dim,
             Encoder::Mlp(e) => e.layers[1].fan_out(),
+        }
+    }
+
+    /// Features of o_t and o_{t+1} for a batch of transitions: (B, out_dim) each.
+    ///
+    /// `window` (B, N_h + 1, H, W) holds o_t's frames followed by o_{t+1}'s newest
+    /// (so o_t is its first N_h frames and o_{t+1} its last N_h, as the replay builds
+    /// them). With the 3D-TCN the frame layers then run once over the window instead
+    /// of twice over N_h frames: with no temporal padding and temporal stride 1 every
+    /// layer shortens the sequence by a fixed amount, so the last layer outputs two
+    /// steps, o_t's features and o_{t+1}'s, each equal to its own [`Encoder::encode`]
+    /// (the histories are encoded per observation). Other encoders, or no window,
+    /// encode the two observations separately.
+    pub fn encode_transition(&self, obs: &Obs, next: &Obs, window: Option<&Tensor>) -> Result<(Tensor, Tensor)> {
+        match (self, obs, next, window) {
+            (
+                Encoder::Tcn(e),
+                Obs::Pixels { frames, actions, rewards },
+                Obs::Pixels { actions: next_actions, rewards: next_rewards, .. },
+                Some(window),
+            ) => {
+                let (b, t, h, w) = window.dims4()?;
+                let (ob, ot, oh, ow) = frames.dims4()?;
+                if (b, t, h, w) != (ob, ot + 1, oh, ow) {
+                    return Err(candle_core::Error::Msg(format!(
+                        "transition window must be (B, N_h + 1, H, W) = ({ob}, {}, {oh}, {ow}), got {:?}",
+                        ot + 1,
+                        window.dims()
+                    ))
+                    .into());
+                }
+                let steps = e.encode_frames_steps(window)?; // (B, 2, F)
+                let frame_features = |i: usize| -> Result<Tensor> { Ok(steps.narrow(1, i, 1)?.reshape((b, ()))?) };
+                Ok((
+                    Tensor::cat(&[frame_features(0)?, e.encode_history(actions, rewards)?], D::Minus1)?,
+                    Tensor::cat(&[frame_features(1)?, e.encode_history(next_actions, next_rewards)?], D::Minus1)?,
+                ))
+            }
+            _ => Ok((self.encode(obs)?, self.encode(next)?)),
         }
     }
 

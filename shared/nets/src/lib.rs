@@ -21,7 +21,7 @@ pub use config::{ACTION_DIM, EncoderKind, NetsConfig};
 pub use encoder::{Encoder, Obs, temporal_plan};
 pub use error::{NetError, Result};
 pub use heads::{CholeskyGaussian, FractionNet, Fractions, PolicyNet, PolicySample, QuantileGrid, QuantileNet};
-pub use nets::{DsacNets, OnlineFeatures};
+pub use nets::{DsacNets, OnlineFeatures, TransitionFeatures};
 pub use optim::{AdamW, AdamWConfig, StepOutcome};
 pub use params::ParamStore;
 pub use runtime::init_cpu_runtime;

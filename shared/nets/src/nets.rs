@@ -28,6 +28,17 @@ pub struct OnlineFeatures {
     pub quantile: Tensor,
 }
 
+/// Encoder features of a batch of transitions (o_t, o_{t+1}) for one DSAC update.
+#[derive(Debug, Clone)]
+pub struct TransitionFeatures {
+    /// o_t's features for the three online heads.
+    pub online: OnlineFeatures,
+    /// o_{t+1}'s features for the policy head (a′).
+    pub next_policy: Tensor,
+    /// o_{t+1}'s features for the fraction head (τ′).
+    pub next_fraction: Tensor,
+}
+
 /// Policy, fraction-proposal, quantile and target quantile networks.
 #[derive(Clone)]
 pub struct DsacNets {
@@ -90,6 +101,32 @@ impl DsacNets {
             features_of(&self.policy.encoder, obs, shared.as_ref())?,
             features_of(&self.fraction.encoder, obs, shared.as_ref())?,
         ))
+    }
+
+    /// [`DsacNets::online_features`] of `obs` together with
+    /// [`DsacNets::policy_and_fraction_features`] of `next`, with each 3D-TCN encoder
+    /// that needs both run once over the transition's frame `window` (see
+    /// [`Encoder::encode_transition`]); equal to the two calls (tested).
+    pub fn transition_features(&self, obs: &Obs, next: &Obs, window: Option<&Tensor>) -> Result<TransitionFeatures> {
+        let pair = |e: &Encoder| e.encode_transition(obs, next, window);
+        let needs_shared = self.policy.encoder.is_none() || self.fraction.encoder.is_none();
+        let quantile_encoder = self.quantile.encoder.as_ref().expect("the quantile net always has an encoder");
+        let (quantile, shared_next) = if needs_shared {
+            let (q, q_next) = pair(quantile_encoder)?;
+            (q, Some(q_next))
+        } else {
+            (quantile_encoder.encode(obs)?, None)
+        };
+        let own_or_shared = |e: &Option<Encoder>| -> Result<(Tensor, Tensor)> {
+            match (e, &shared_next) {
+                (Some(e), _) => pair(e),
+                (None, Some(n)) => Ok((quantile.detach(), n.detach())),
+                (None, None) => unreachable!("shared features exist when a head has no encoder"),
+            }
+        };
+        let (policy, next_policy) = own_or_shared(&self.policy.encoder)?;
+        let (fraction, next_fraction) = own_or_shared(&self.fraction.encoder)?;
+        Ok(TransitionFeatures { online: OnlineFeatures { policy, fraction, quantile }, next_policy, next_fraction })
     }
 
     /// Features of the target quantile net.

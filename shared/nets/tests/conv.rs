@@ -45,26 +45,57 @@ fn cases() -> Vec<Case> {
         Case { name: "1d k2 d4", input: [3, 9, 1, 1, 3], c_out: 5, spec: s([2, 1, 1], [1, 1], [0, 0], 4) },
         Case { name: "temporal k5 over 3x3", input: [2, 5, 3, 3, 4], c_out: 3, spec: s([5, 1, 1], [1, 1], [0, 0], 1) },
         Case { name: "pointwise", input: [2, 2, 3, 3, 3], c_out: 2, spec: s([1, 1, 1], [1, 1], [0, 0], 1) },
+        // One input channel with a lane-sized C_out: the direct kernel.
+        Case {
+            name: "direct 1ch k2x4x4 s2 p1 d2 odd",
+            input: [3, 6, 9, 10, 1],
+            c_out: 16,
+            spec: s([2, 4, 4], [2, 2], [1, 1], 2),
+        },
+        Case {
+            name: "direct 1ch k3x3x3 s3 p0 d1",
+            input: [2, 4, 9, 12, 1],
+            c_out: 8,
+            spec: s([3, 3, 3], [3, 3], [0, 0], 1),
+        },
+        Case {
+            name: "direct 1ch 2d k4 s2 p2",
+            input: [2, 1, 8, 6, 1],
+            c_out: 32,
+            spec: s([1, 4, 4], [2, 2], [2, 2], 1),
+        },
+        Case {
+            name: "direct 1ch k2x4x4 s2 p1 d1",
+            input: [2, 3, 10, 10, 1],
+            c_out: 16,
+            spec: s([2, 4, 4], [2, 2], [1, 1], 1),
+        },
     ]
 }
 
 /// ∂/∂θ of L = Σ y ⊙ R by central differences with step 0.5 (L is linear in each
 /// argument, so the difference quotient is exact up to rounding).
-fn fd_check(case: &Case, seed: u64) {
+/// With `input_grad` false the input is a constant (the first layer of an encoder),
+/// which takes the kernels' weight-gradient-only path.
+fn fd_check(case: &Case, seed: u64, input_grad: bool) {
     let mut rng = ChaCha8Rng::seed_from_u64(seed);
     let [_, _, _, _, ci] = case.input;
     let x = Var::from_tensor(&random(&mut rng, &case.input)).unwrap();
+    let x_in = if input_grad { x.as_tensor().clone() } else { x.as_tensor().detach() };
     let w = Var::from_tensor(&random(&mut rng, &[case.spec.weight_rows(ci), case.c_out])).unwrap();
     let b = Var::from_tensor(&random(&mut rng, &[case.c_out])).unwrap();
-    let y = conv(&x, &w, &b, case.spec).unwrap();
+    let y = conv(&x_in, &w, &b, case.spec).unwrap();
     let r = random(&mut rng, y.dims());
     let grads = (&y * &r).unwrap().sum_all().unwrap().backward().unwrap();
+    assert_eq!(grads.get(&x).is_some(), input_grad, "{}: input gradient present iff asked", case.name);
     let loss = |x: &Tensor, w: &Tensor, b: &Tensor| -> f64 {
         let y = to_vec(&conv(x, w, b, case.spec).unwrap());
         y.iter().zip(to_vec(&r)).map(|(a, b)| *a as f64 * b as f64).sum()
     };
     let h = 0.5f32;
-    for (which, var) in [("input", &x), ("weight", &w), ("bias", &b)] {
+    let checked: &[(&str, &Var)] =
+        if input_grad { &[("input", &x), ("weight", &w), ("bias", &b)] } else { &[("weight", &w), ("bias", &b)] };
+    for &(which, var) in checked {
         let analytic = to_vec(grads.get(var).unwrap_or_else(|| panic!("{}: no gradient for {which}", case.name)));
         let base = to_vec(var.as_tensor());
         let n = base.len();
@@ -96,7 +127,8 @@ fn fd_check(case: &Case, seed: u64) {
 #[test]
 fn gradients_match_finite_differences() {
     for (i, case) in cases().iter().enumerate() {
-        fd_check(case, 100 + i as u64);
+        fd_check(case, 100 + i as u64, true);
+        fd_check(case, 300 + i as u64, false);
     }
 }
 
@@ -174,6 +206,13 @@ fn outputs_and_gradients_equal_candles_conv2d() {
             let g1 = (&ours * &r).unwrap().sum_all().unwrap().backward().unwrap();
             let g2 = (&reference * &r).unwrap().sum_all().unwrap().backward().unwrap();
             for (what, var) in [("dx", &x), ("dw", &w), ("db", &b)] {
+                close(g1.get(var).unwrap(), g2.get(var).unwrap(), what);
+            }
+            // A constant input (first layer): the weight-gradient-only path.
+            let xc = x.as_tensor().detach();
+            let g1 = (conv(&xc, &w, &b, spec).unwrap() * &r).unwrap().sum_all().unwrap().backward().unwrap();
+            let g2 = (conv_reference(&xc, &w, &b, spec).unwrap() * &r).unwrap().sum_all().unwrap().backward().unwrap();
+            for (what, var) in [("dw (constant input)", &w), ("db (constant input)", &b)] {
                 close(g1.get(var).unwrap(), g2.get(var).unwrap(), what);
             }
         }

@@ -346,3 +346,44 @@ fn adamw_moments_hold_values_not_the_update_graph() {
         }
     }
 }
+
+/// One pass over a transition's N_h + 1 frames gives the same features as encoding
+/// o_t and o_{t+1} separately (separate and shared encoders, several N_h).
+#[test]
+fn transition_features_equal_separate_encoding() {
+    let mut rng = ChaCha8Rng::seed_from_u64(11);
+    for (history, shared) in [(4, false), (8, true), (16, false), (7, true)] {
+        let cfg = NetsConfig { history, ..tiny(EncoderKind::Tcn, shared) };
+        let nets = DsacNets::new(&cfg, &Device::Cpu, 2).unwrap();
+        let (b, s) = (3, cfg.image_size);
+        let window = random(&mut rng, &[b, history + 1, s, s], 1.0).abs().unwrap();
+        let obs = Obs::Pixels {
+            frames: window.narrow(1, 0, history).unwrap().contiguous().unwrap(),
+            actions: random(&mut rng, &[b, history - 1, 3], 1.0),
+            rewards: random(&mut rng, &[b, history - 1], 1.0),
+        };
+        let next = Obs::Pixels {
+            frames: window.narrow(1, 1, history).unwrap().contiguous().unwrap(),
+            actions: random(&mut rng, &[b, history - 1, 3], 1.0),
+            rewards: random(&mut rng, &[b, history - 1], 1.0),
+        };
+        let together = nets.transition_features(&obs, &next, Some(&window)).unwrap();
+        let online = nets.online_features(&obs).unwrap();
+        let (next_policy, next_fraction) = nets.policy_and_fraction_features(&next).unwrap();
+        let close = |a: &Tensor, b: &Tensor, what: &str| {
+            assert_eq!(a.dims(), b.dims(), "N_h {history} {what}");
+            for (u, v) in rows(a).concat().iter().zip(rows(b).concat()) {
+                assert!((u - v).abs() <= 1e-5 * (1.0 + v.abs()), "N_h {history} shared {shared} {what}: {u} vs {v}");
+            }
+        };
+        close(&together.online.policy, &online.policy, "policy");
+        close(&together.online.fraction, &online.fraction, "fraction");
+        close(&together.online.quantile, &online.quantile, "quantile");
+        close(&together.next_policy, &next_policy, "next policy");
+        close(&together.next_fraction, &next_fraction, "next fraction");
+        // A window that does not hold N_h + 1 frames is refused, naming the shape.
+        let short = window.narrow(1, 0, history).unwrap();
+        let err = nets.transition_features(&obs, &next, Some(&short)).unwrap_err().to_string();
+        assert!(err.contains("N_h + 1"), "{err}");
+    }
+}

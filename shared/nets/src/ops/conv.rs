@@ -23,6 +23,11 @@
 //!
 //! Parallelism: samples are spread over rayon's pool with a single-threaded gemm
 //! each; with fewer samples than threads (actor inference) gemm itself runs in parallel.
+//!
+//! Layers with one input channel (the 3D-TCN's first layer) skip im2col + gemm: a
+//! direct kernel, compiled for AVX-512 or AVX2 + FMA and chosen at run time,
+//! accumulates each output position's C_out lanes in registers (forward, and dW/db
+//! when the input needs no gradient).
 
 use candle_core::{CpuStorage, CustomOp3, Layout, Shape, Storage, Tensor};
 use gemm::Parallelism;
@@ -150,6 +155,21 @@ impl Geometry {
     fn cols_len(&self) -> usize {
         self.t * self.ps() * self.ks()
     }
+    /// Spatial size of a frame with the zero padding applied: (H + 2p_h, W + 2p_w).
+    fn padded(&self) -> (usize, usize) {
+        (self.h + 2 * self.spec.padding[0], self.w + 2 * self.spec.padding[1])
+    }
+    /// Length of one sample's padded frames.
+    fn padded_len(&self) -> usize {
+        let (hp, wp) = self.padded();
+        self.t * hp * wp
+    }
+    /// True when the direct single-channel kernel applies: one input channel (the
+    /// 3D-TCN's first layer, where the column matrix would have only k_t·k_h·k_w
+    /// columns and gemm would mostly move memory) and a lane-sized C_out.
+    fn direct(&self) -> bool {
+        self.ci == 1 && direct::LANES.contains(&self.co) && !self.spatially_pointwise()
+    }
     /// True when the spatial im2col is the identity (1×1 kernel, stride 1, no padding):
     /// then the input itself is the column matrix, whatever the temporal kernel.
     fn spatially_pointwise(&self) -> bool {
@@ -241,6 +261,8 @@ fn col2im_add(g: &Geometry, cols: &[f32], dx: &mut [f32]) {
     });
 }
 
+mod direct;
+
 /// `dst (m×n) = [dst +] lhs (m×k) · rhs (k×n)` with explicit strides (row, column).
 #[allow(clippy::too_many_arguments)]
 fn matmul(
@@ -310,28 +332,45 @@ fn forward(g: &Geometry, x: &[f32], w: &[f32], bias: &[f32]) -> Vec<f32> {
     let mut out = vec![0f32; g.b * g.out_len()];
     let par = inner_parallelism(g.b);
     let pointwise = g.spatially_pointwise();
+    let direct = g.direct();
     out.par_chunks_mut(g.out_len().max(1))
         .zip(x.par_chunks(g.in_len().max(1)))
         .with_min_len(min_len(g.b))
         .for_each_init(
-            || if pointwise { Vec::new() } else { vec![0f32; g.cols_len()] },
-            |cols, (y, xb)| {
-                for row in y.chunks_exact_mut(co) {
-                    row.copy_from_slice(bias);
+            || {
+                if direct {
+                    vec![0f32; g.padded_len()]
+                } else if pointwise {
+                    Vec::new()
+                } else {
+                    vec![0f32; g.cols_len()]
+                }
+            },
+            |scratch, (y, xb)| {
+                if direct {
+                    direct::pad_frames(g, xb, scratch);
+                    direct::forward(g, scratch, w, bias, y);
+                    return;
                 }
                 let lhs: &[f32] = if pointwise {
                     xb
                 } else {
-                    im2col(g, xb, cols);
-                    cols
+                    im2col(g, xb, scratch);
+                    scratch
                 };
                 for dt in 0..g.spec.kernel[0] {
                     let tap = &lhs[g.tap_row(dt) * ks..];
-                    matmul(rows, co, ks, y, true, tap, (ks, 1), &w[dt * ks * co..], (co, 1), par);
+                    matmul(rows, co, ks, y, dt > 0, tap, (ks, 1), &w[dt * ks * co..], (co, 1), par);
                 }
-                if g.spec.relu {
-                    for v in y.iter_mut() {
-                        *v = v.max(0.0);
+                // Bias and ReLU in one pass over the output.
+                for row in y.chunks_exact_mut(co) {
+                    for (v, b) in row.iter_mut().zip(bias) {
+                        *v += b;
+                    }
+                    if g.spec.relu {
+                        for v in row.iter_mut() {
+                            *v = v.max(0.0);
+                        }
                     }
                 }
             },
@@ -352,6 +391,8 @@ fn backward(
     let kt = g.spec.kernel[0];
     let par = inner_parallelism(g.b);
     let pointwise = g.spatially_pointwise();
+    // The direct kernel computes dW and db; an input gradient takes the gemm path.
+    let direct = g.direct() && !need_dx;
     let mut dx = if need_dx { vec![0f32; g.b * g.in_len()] } else { Vec::new() };
     let in_len = g.in_len().max(1);
     let out_len = g.out_len().max(1);
@@ -366,7 +407,13 @@ fn backward(
     let new_scratch = || Scratch {
         dw: vec![0f32; kt * ks * co],
         db: vec![0f32; co],
-        cols: if pointwise { Vec::new() } else { vec![0f32; g.cols_len()] },
+        cols: if direct {
+            vec![0f32; g.padded_len()]
+        } else if pointwise {
+            Vec::new()
+        } else {
+            vec![0f32; g.cols_len()]
+        },
         dcols: if need_dx && !pointwise { vec![0f32; g.cols_len()] } else { Vec::new() },
         gy: vec![0f32; g.out_len()],
     };
@@ -379,6 +426,11 @@ fn backward(
             for (d, v) in s.db.iter_mut().zip(row) {
                 *d += v;
             }
+        }
+        if direct {
+            direct::pad_frames(g, xb, &mut s.cols);
+            direct::weight_grad(g, &s.cols, &s.gy, &mut s.dw);
+            return s;
         }
         let lhs: &[f32] = if pointwise {
             xb
