@@ -76,8 +76,8 @@ struct Counters {
 fn main() -> Result<()> {
     pednav_runtime::init_logging();
     let cli = Cli::parse();
-    let stop = StopFlag::install();
     init_cpu_runtime(Some(1));
+    let stop = StopFlag::install();
     let dir = RunDir::new(&cli.run_dir);
     let cfg = dir.load_config()?;
     let name = format!("actor-{}", cli.actor);

@@ -130,8 +130,8 @@ impl Learner {
 fn main() -> Result<()> {
     pednav_runtime::init_logging();
     let cli = Cli::parse();
-    let stop = StopFlag::install();
     let threads = init_cpu_runtime(cli.threads);
+    let stop = StopFlag::install();
     let dir = RunDir::new(&cli.run_dir);
     let cfg = dir.load_config()?;
     let device = Device::Cpu;

@@ -39,6 +39,8 @@ pub enum PolicyKind {
     Oracle,
 }
 
+// One per evaluator, so the size of the learned variant does not matter.
+#[allow(clippy::large_enum_variant)]
 enum Policy {
     Learned { nets: DsacNets, cfg: NetsConfig, stream: PolicyStream, deterministic: bool, rng: ChaCha8Rng },
     Random(ChaCha8Rng),
@@ -78,6 +80,7 @@ pub fn load_policy(run_dir: &Path) -> Result<(RunConfig, DsacNets)> {
 impl Evaluator {
     /// An evaluator with `envs` environments. `sim` is the run's simulator config
     /// (its `t_max` is replaced by `t_max`); `nets` is needed for learned policies.
+    #[allow(clippy::too_many_arguments)]
     pub fn new(
         scene: pednav_sim::Scene,
         sim: &SimConfig,
@@ -92,7 +95,7 @@ impl Evaluator {
         // Only a learned pixel policy needs the renderer.
         let obs_mode = if learned { sim.obs_mode } else { ObsMode::StateDebug };
         let world = Arc::new(SimWorld::new(scene, SimConfig { t_max, obs_mode, ..sim.clone() })?);
-        let envs_ = VecEnv::new(world.clone(), envs, BackendChoice::from_env().map_err(|e| ExperimentError::Plot(e))?)?;
+        let envs_ = VecEnv::new(world.clone(), envs, BackendChoice::from_env().map_err(ExperimentError::Plot)?)?;
         let device = Device::Cpu;
         let policy = match kind {
             PolicyKind::Learned { deterministic } => {

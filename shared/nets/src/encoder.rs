@@ -278,8 +278,8 @@ impl Encoder {
                 Ok(Tensor::cat(&[f, h], D::Minus1)?)
             }
             (Encoder::FrameStack(e), Obs::Pixels { frames, .. }) => {
-                let (b, t, h, w) = frames.dims4()?;
-                let mut x = frames.permute((0, 2, 3, 1))?.reshape((b, 1, h, w, t))?;
+                let b = frames.dims()[0];
+                let mut x = crate::ops::frames_to_channels_last(frames)?;
                 for c in &e.convs {
                     x = c.forward(&x)?;
                 }

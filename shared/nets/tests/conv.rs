@@ -70,6 +70,32 @@ fn cases() -> Vec<Case> {
             c_out: 16,
             spec: s([2, 4, 4], [2, 2], [1, 1], 1),
         },
+        // Several input channels: direct kernel while the weights fit in L1, gemm beyond.
+        Case {
+            name: "16ch k2x4x4 s2 p1 d2 C_out 32 (64 KiB of weights: gemm)",
+            input: [2, 5, 10, 12, 16],
+            c_out: 32,
+            spec: s([2, 4, 4], [2, 2], [1, 1], 2),
+        },
+        Case {
+            name: "direct 3ch k2x3x3 s1 p1 odd",
+            input: [2, 3, 7, 9, 3],
+            c_out: 16,
+            spec: s([2, 3, 3], [1, 1], [1, 1], 1),
+        },
+        Case {
+            name: "direct 4ch 2d k4 s2 p1",
+            input: [2, 1, 8, 8, 4],
+            c_out: 8,
+            spec: s([1, 4, 4], [2, 2], [1, 1], 1),
+        },
+        // One sample: its output frames are split over the threads.
+        Case {
+            name: "direct 1 sample 16ch",
+            input: [1, 5, 9, 9, 16],
+            c_out: 16,
+            spec: s([2, 3, 3], [1, 1], [1, 1], 2),
+        },
     ]
 }
 

@@ -387,3 +387,14 @@ fn transition_features_equal_separate_encoding() {
         assert!(err.contains("N_h + 1"), "{err}");
     }
 }
+
+/// The fast frames → channel-last transpose equals candle's permute.
+#[test]
+fn frames_to_channels_last_equals_the_permute() {
+    let mut rng = ChaCha8Rng::seed_from_u64(4);
+    let frames = random(&mut rng, &[3, 5, 7, 6], 1.0);
+    let fast = pednav_nets::ops::frames_to_channels_last(&frames).unwrap();
+    let reference = frames.permute((0, 2, 3, 1)).unwrap().reshape((3, 1, 7, 6, 5)).unwrap();
+    assert_eq!(fast.dims(), reference.dims());
+    assert_eq!(rows(&fast.flatten_from(1).unwrap()), rows(&reference.flatten_from(1).unwrap()));
+}

@@ -24,10 +24,11 @@
 //! Parallelism: samples are spread over rayon's pool with a single-threaded gemm
 //! each; with fewer samples than threads (actor inference) gemm itself runs in parallel.
 //!
-//! Layers with one input channel (the 3D-TCN's first layer) skip im2col + gemm: a
-//! direct kernel, compiled for AVX-512 or AVX2 + FMA and chosen at run time,
-//! accumulates each output position's C_out lanes in registers (forward, and dW/db
-//! when the input needs no gradient).
+//! Narrow layers (C_out ≤ 32, weights ≤ 32 KiB: the 3D-TCN's first layer and the
+//! frame-stacking encoder's first two) skip im2col + gemm for the forward pass and
+//! dW: a direct kernel ([`direct`]), compiled for AVX-512
+//! or AVX2 + FMA and chosen at run time, accumulates each output position's C_out
+//! lanes in registers. Their input gradient still goes through gemm and col2im.
 
 use candle_core::{CpuStorage, CustomOp3, Layout, Shape, Storage, Tensor};
 use gemm::Parallelism;
@@ -159,16 +160,18 @@ impl Geometry {
     fn padded(&self) -> (usize, usize) {
         (self.h + 2 * self.spec.padding[0], self.w + 2 * self.spec.padding[1])
     }
-    /// Length of one sample's padded frames.
+    /// Length of one sample's padded input.
     fn padded_len(&self) -> usize {
         let (hp, wp) = self.padded();
-        self.t * hp * wp
+        self.t * hp * wp * self.ci
     }
-    /// True when the direct single-channel kernel applies: one input channel (the
-    /// 3D-TCN's first layer, where the column matrix would have only k_t·k_h·k_w
-    /// columns and gemm would mostly move memory) and a lane-sized C_out.
+    /// True when the direct kernel ([`direct`]) computes the forward pass and the
+    /// weight gradient: a lane-sized C_out ≤ 32, a spatial kernel, and weights that
+    /// stay in the L1 cache (per-layer measurements in `benches/conv_layers.rs`).
     fn direct(&self) -> bool {
-        self.ci == 1 && direct::LANES.contains(&self.co) && !self.spatially_pointwise()
+        direct::LANES.contains(&self.co)
+            && !self.spatially_pointwise()
+            && self.spec.weight_rows(self.ci) * self.co <= direct::MAX_WEIGHTS
     }
     /// True when the spatial im2col is the identity (1×1 kernel, stride 1, no padding):
     /// then the input itself is the column matrix, whatever the temporal kernel.
@@ -333,6 +336,19 @@ fn forward(g: &Geometry, x: &[f32], w: &[f32], bias: &[f32]) -> Vec<f32> {
     let par = inner_parallelism(g.b);
     let pointwise = g.spatially_pointwise();
     let direct = g.direct();
+    if direct && matches!(par, Parallelism::Rayon(_)) {
+        // Fewer samples than threads (actor inference): split each sample's output
+        // frames over the pool instead.
+        let mut xp = vec![0f32; g.padded_len()];
+        let frame_len = (g.ps() * co).max(1);
+        for (y, xb) in out.chunks_mut(g.out_len().max(1)).zip(x.chunks(g.in_len().max(1))) {
+            direct::pad_frames(g, xb, &mut xp);
+            y.par_chunks_mut(frame_len)
+                .enumerate()
+                .for_each(|(to, yf)| direct::forward(g, &xp, w, bias, yf, to..to + 1));
+        }
+        return out;
+    }
     out.par_chunks_mut(g.out_len().max(1))
         .zip(x.par_chunks(g.in_len().max(1)))
         .with_min_len(min_len(g.b))
@@ -349,7 +365,7 @@ fn forward(g: &Geometry, x: &[f32], w: &[f32], bias: &[f32]) -> Vec<f32> {
             |scratch, (y, xb)| {
                 if direct {
                     direct::pad_frames(g, xb, scratch);
-                    direct::forward(g, scratch, w, bias, y);
+                    direct::forward(g, scratch, w, bias, y, 0..g.to);
                     return;
                 }
                 let lhs: &[f32] = if pointwise {
@@ -391,8 +407,9 @@ fn backward(
     let kt = g.spec.kernel[0];
     let par = inner_parallelism(g.b);
     let pointwise = g.spatially_pointwise();
-    // The direct kernel computes dW and db; an input gradient takes the gemm path.
-    let direct = g.direct() && !need_dx;
+    // The direct kernel computes dW; an input gradient always takes the gemm path
+    // (gy · Wᵀ into the column matrix, then col2im), which needs no im2col.
+    let direct = g.direct();
     let mut dx = if need_dx { vec![0f32; g.b * g.in_len()] } else { Vec::new() };
     let in_len = g.in_len().max(1);
     let out_len = g.out_len().max(1);
@@ -430,18 +447,18 @@ fn backward(
         if direct {
             direct::pad_frames(g, xb, &mut s.cols);
             direct::weight_grad(g, &s.cols, &s.gy, &mut s.dw);
-            return s;
-        }
-        let lhs: &[f32] = if pointwise {
-            xb
         } else {
-            im2col(g, xb, &mut s.cols);
-            &s.cols
-        };
-        // dW_dt (ks×co) += tapᵀ (ks×rows) · gy (rows×co)
-        for dt in 0..kt {
-            let tap = &lhs[g.tap_row(dt) * ks..];
-            matmul(ks, co, rows, &mut s.dw[dt * ks * co..], true, tap, (1, ks), &s.gy, (co, 1), par);
+            let lhs: &[f32] = if pointwise {
+                xb
+            } else {
+                im2col(g, xb, &mut s.cols);
+                &s.cols
+            };
+            // dW_dt (ks×co) += tapᵀ (ks×rows) · gy (rows×co)
+            for dt in 0..kt {
+                let tap = &lhs[g.tap_row(dt) * ks..];
+                matmul(ks, co, rows, &mut s.dw[dt * ks * co..], true, tap, (1, ks), &s.gy, (co, 1), par);
+            }
         }
         if let Some(dxb) = dxb {
             // dtap (rows×ks) += gy (rows×co) · W_dtᵀ (co×ks), into the column matrix
@@ -495,7 +512,11 @@ fn cpu_f32<'a>(s: &'a CpuStorage, l: &Layout, what: &str) -> candle_core::Result
 }
 
 /// Run `f` on the contiguous CPU f32 data of `t`.
-fn with_cpu_f32<R>(t: &Tensor, what: &str, f: impl FnOnce(&[f32]) -> candle_core::Result<R>) -> candle_core::Result<R> {
+pub(crate) fn with_cpu_f32<R>(
+    t: &Tensor,
+    what: &str,
+    f: impl FnOnce(&[f32]) -> candle_core::Result<R>,
+) -> candle_core::Result<R> {
     let (storage, layout) = t.storage_and_layout();
     match &*storage {
         Storage::Cpu(s) => f(cpu_f32(s, layout, what)?),

@@ -1,9 +1,10 @@
 //! Operations candle 0.11 lacks: the channel-last convolution kernel, softplus,
-//! and a few numerically careful helpers.
+//! a fast frames-to-channels transpose, and a few numerically careful helpers.
 
 pub mod conv;
 
 use candle_core::{Result, Tensor};
+use rayon::prelude::*;
 
 pub use conv::{ConvSpec, conv, conv_reference};
 
@@ -20,4 +21,31 @@ pub fn softplus(x: &Tensor) -> Result<Tensor> {
 pub fn log_one_minus_tanh_sq(u: &Tensor) -> Result<Tensor> {
     let sp = softplus(&(u * -2.0)?)?;
     ((u.neg()? - sp)? + std::f64::consts::LN_2)? * 2.0
+}
+
+/// Frames (B, T, H, W) as one T-channel image each: (B, 1, H, W, T), the
+/// frame-stacking encoder's channel-last input.
+///
+/// candle's strided copy of the equivalent `permute((0, 2, 3, 1))` ran at ≈2 GB/s
+/// and took 16 % of a frame-stacking update; observations carry no gradient, so a
+/// CPU tensor that tracks none is transposed directly (samples in parallel, each
+/// output pixel's T values written together). Anything else takes the permute.
+pub fn frames_to_channels_last(frames: &Tensor) -> Result<Tensor> {
+    let (b, t, h, w) = frames.dims4()?;
+    if !frames.device().is_cpu() || frames.track_op() {
+        return frames.permute((0, 2, 3, 1))?.reshape((b, 1, h, w, t));
+    }
+    let p = h * w;
+    let mut dst = vec![0f32; b * t * p];
+    conv::with_cpu_f32(&frames.contiguous()?, "frames", |src| {
+        dst.par_chunks_mut((t * p).max(1)).zip(src.par_chunks((t * p).max(1))).for_each(|(out, sample)| {
+            for (px, o) in out.chunks_exact_mut(t).enumerate() {
+                for (ti, v) in o.iter_mut().enumerate() {
+                    *v = sample[ti * p + px];
+                }
+            }
+        });
+        Ok(())
+    })?;
+    Tensor::from_vec(dst, (b, 1, h, w, t), frames.device())
 }

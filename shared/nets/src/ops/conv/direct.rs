@@ -1,71 +1,88 @@
-//! Direct kernels for convolutions with one input channel (the 3D-TCN's first layer).
+//! Direct (implicit-gemm) kernels for narrow convolutions: C_out ≤ 32, small weights.
 //!
-//! With C_in = 1 the column matrix has only k_t·k_h·k_w columns, so im2col + gemm
-//! mostly moves memory (measured 14–19 GFLOP/s there, against 60–120 on the other
-//! layers). Here an output position is Σ_taps x_tap · W_tap over its C_out lanes:
-//! one broadcast and C_out/16 fused multiply-adds per tap, accumulators in registers.
-//! Positions go in blocks of P along the output row, each an independent chain (a
-//! single chain waits on the FMA latency at every tap) sharing each weight load.
+//! With few output channels the gemm after im2col gets a thin right-hand side and
+//! spends its time moving memory (measured: the first 3D-TCN layer, C_in = 1, ran at
+//! 14–19 GFLOP/s and the frame-stacking encoder's first layer, C_out = 16, at ≈50;
+//! the wider layers reach 60–120). Here an output position is Σ over the taps and
+//! input channels of x · W_row over its C_out lanes, read straight from the padded
+//! channel-last input: for each (dt, dh) the k_w·C_in inputs are contiguous, so a
+//! position costs k_t·k_h·k_w·C_in broadcasts and C_out/16 fused multiply-adds each,
+//! with the accumulators in registers. Consecutive output positions go in blocks of
+//! P (a block may span rows, each position with its own input offset), each an
+//! independent chain (a single chain waits on the FMA latency at every step)
+//! sharing each weight load. With C_out = 64, or weights beyond the L1 cache
+//! ([`MAX_WEIGHTS`]), gemm was faster (measured), so those layers keep im2col + gemm.
 //!
 //! Invariant: every function here computes exactly the convolution of the parent
 //! module (forward: bias, taps and ReLU; weight gradient: Σ over positions of
-//! x_tap · gy) for the geometry it is given; the AVX-512 kernels and the portable
-//! ones agree (unit test below), and the parent's tests check both against candle's
-//! `conv2d` and finite differences. Frames are zero-padded once per sample
+//! x · gy) for the geometry it is given; the AVX-512 kernels and the portable ones
+//! agree (unit test below), and the parent's tests check both against candle's
+//! `conv2d` and finite differences. The input is zero-padded once per sample
 //! ([`pad_frames`]), so no kernel has bounds logic for the padding.
+
+use std::ops::Range;
 
 use super::Geometry;
 
-/// C_out values with a direct kernel.
-pub(super) const LANES: [usize; 4] = [8, 16, 32, 64];
+/// Largest weight matrix (floats) the direct kernel takes: 32 KiB, so the rows it
+/// sweeps for every block of positions stay in the L1 cache. Measured on the second
+/// 3D-TCN layer (64 KiB of weights): gemm was faster at 42² (≈5 vs 8 ms forward,
+/// B 32) and no slower at 84².
+pub(super) const MAX_WEIGHTS: usize = 8192;
 
-/// Copy one sample's frames (T, H, W) into `xp` (T, H + 2p_h, W + 2p_w) with zero borders.
+/// C_out values with a direct kernel (vector lanes: 8 for AVX2, 16 and 32 for AVX-512).
+pub(super) const LANES: [usize; 3] = [8, 16, 32];
+
+/// Copy one sample's input (T, H, W, C_in) into `xp` (T, H + 2p_h, W + 2p_w, C_in)
+/// with zero borders.
 pub(super) fn pad_frames(g: &Geometry, x: &[f32], xp: &mut [f32]) {
     let (hp, wp) = g.padded();
     let [ph, pw] = g.spec.padding;
+    let ci = g.ci;
     xp.fill(0.0);
-    for (t, frame) in x.chunks_exact(g.h * g.w).enumerate() {
-        for (h, row) in frame.chunks_exact(g.w).enumerate() {
-            let dst = (t * hp + h + ph) * wp + pw;
-            xp[dst..dst + g.w].copy_from_slice(row);
+    for (t, frame) in x.chunks_exact(g.h * g.w * ci).enumerate() {
+        for (h, row) in frame.chunks_exact(g.w * ci).enumerate() {
+            let dst = ((t * hp + h + ph) * wp + pw) * ci;
+            xp[dst..dst + g.w * ci].copy_from_slice(row);
         }
     }
 }
 
 /// Check once per sample that every index the kernels compute is in bounds.
-fn check_sizes(g: &Geometry, xp: &[f32], w: &[f32], y_or_gy: &[f32]) {
-    let taps: usize = g.spec.kernel.iter().product();
+fn check_sizes(g: &Geometry, xp: &[f32], w: &[f32]) {
+    let taps = g.spec.weight_rows(g.ci);
     assert!(xp.len() >= g.padded_len(), "padded frames too short");
     assert!(w.len() >= taps * g.co, "weights too short");
-    assert!(y_or_gy.len() >= g.out_len(), "output too short");
     // The furthest input a kernel reads lies inside the padded frames because the
     // output size came from `ConvSpec::output_size` of the same geometry.
     debug_assert!(g.spec.output_size(g.t, g.h, g.w) == Some((g.to, g.ho, g.wo)));
 }
 
-/// Forward of one sample from its padded frames: y (T_out·H_out·W_out, C_out).
-pub(super) fn forward(g: &Geometry, xp: &[f32], w: &[f32], bias: &[f32], y: &mut [f32]) {
-    check_sizes(g, xp, w, y);
+/// Forward of output frames `frames` of one sample from its padded input: y
+/// (frames.len()·H_out·W_out, C_out).
+pub(super) fn forward(g: &Geometry, xp: &[f32], w: &[f32], bias: &[f32], y: &mut [f32], frames: Range<usize>) {
+    check_sizes(g, xp, w);
+    assert!(frames.end <= g.to && y.len() >= frames.len() * g.ps() * g.co, "output too short");
     assert_eq!(bias.len(), g.co, "bias has C_out entries");
     #[cfg(target_arch = "x86_64")]
     if std::arch::is_x86_feature_detected!("avx512f") {
         // Safety: the CPU has AVX-512F; sizes were checked above.
         unsafe {
             match g.co {
-                16 => return avx512::forward::<1, 8>(g, xp, w, bias, y),
-                32 => return avx512::forward::<2, 4>(g, xp, w, bias, y),
-                64 => return avx512::forward::<4, 2>(g, xp, w, bias, y),
+                16 => return avx512::forward::<1, 8>(g, xp, w, bias, y, frames),
+                32 => return avx512::forward::<2, 4>(g, xp, w, bias, y, frames),
                 _ => {}
             }
         }
     }
-    portable_forward(g, xp, w, bias, y);
+    portable_forward(g, xp, w, bias, y, frames);
 }
 
 /// dW (k_t·k_h·k_w, C_out) += Σ_positions x_tap · gy of one sample (gy already
 /// masked by the ReLU).
 pub(super) fn weight_grad(g: &Geometry, xp: &[f32], gy: &[f32], dw: &mut [f32]) {
-    check_sizes(g, xp, dw, gy);
+    check_sizes(g, xp, dw);
+    assert!(gy.len() >= g.out_len(), "output gradient too short");
     #[cfg(target_arch = "x86_64")]
     if std::arch::is_x86_feature_detected!("avx512f") {
         // Safety: the CPU has AVX-512F; sizes were checked above.
@@ -73,7 +90,6 @@ pub(super) fn weight_grad(g: &Geometry, xp: &[f32], gy: &[f32], dw: &mut [f32]) 
             match g.co {
                 16 => return avx512::weight_grad::<1, 8>(g, xp, gy, dw),
                 32 => return avx512::weight_grad::<2, 4>(g, xp, gy, dw),
-                64 => return avx512::weight_grad::<4, 2>(g, xp, gy, dw),
                 _ => {}
             }
         }
@@ -81,29 +97,39 @@ pub(super) fn weight_grad(g: &Geometry, xp: &[f32], gy: &[f32], dw: &mut [f32]) 
     portable_weight_grad(g, xp, gy, dw);
 }
 
-/// Visit the blocks of one sample: `f(to, ho, wo0, len)` with `len` = `p` or 1 (the
-/// row's remainder).
+/// Visit blocks of consecutive output positions q (linear over T_out·H_out·W_out,
+/// the output's memory order) of frames `frames`: `f(q0, len)` with `len` = `p`, and
+/// single positions for the remainder. A block may span output rows and frames:
+/// each position has its own input offset ([`input_offset`]).
 #[inline(always)]
-fn for_each_block(g: &Geometry, p: usize, mut f: impl FnMut(usize, usize, usize, usize)) {
-    for to in 0..g.to {
-        for ho in 0..g.ho {
-            let mut wo = 0;
-            while wo + p <= g.wo {
-                f(to, ho, wo, p);
-                wo += p;
-            }
-            for wo in wo..g.wo {
-                f(to, ho, wo, 1);
-            }
-        }
+fn for_each_block(g: &Geometry, frames: Range<usize>, p: usize, mut f: impl FnMut(usize, usize)) {
+    let per_frame = g.ps();
+    let (start, end) = (frames.start * per_frame, frames.end * per_frame);
+    let mut q = start;
+    while q + p <= end {
+        f(q, p);
+        q += p;
+    }
+    for q in q..end {
+        f(q, 1);
     }
 }
 
-/// Offset in the padded frames of tap (dt, dh, 0) for output position (to, ho, wo).
+/// Offset in the padded input of tap (0, 0, 0), channel 0, of output position q.
 #[inline(always)]
-fn tap_row(g: &Geometry, to: usize, ho: usize, wo: usize, dt: usize, dh: usize) -> usize {
+fn input_offset(g: &Geometry, q: usize) -> usize {
     let (hp, wp) = g.padded();
-    ((to + dt * g.spec.dilation_t) * hp + ho * g.spec.stride[0] + dh) * wp + wo * g.spec.stride[1]
+    let (wo, rest) = (q % g.wo, q / g.wo);
+    let (ho, to) = (rest % g.ho, rest / g.ho);
+    ((to * hp + ho * g.spec.stride[0]) * wp + wo * g.spec.stride[1]) * g.ci
+}
+
+/// Offset of tap (dt, dh, 0) relative to tap (0, 0, 0): its k_w·C_in inputs follow
+/// contiguously.
+#[inline(always)]
+fn tap_offset(g: &Geometry, dt: usize, dh: usize) -> usize {
+    let (hp, wp) = g.padded();
+    (dt * g.spec.dilation_t * hp + dh) * wp * g.ci
 }
 
 #[cfg(target_arch = "x86_64")]
@@ -112,11 +138,12 @@ mod avx512 {
     use std::arch::x86_64::{
         __m512, _mm512_fmadd_ps, _mm512_loadu_ps, _mm512_max_ps, _mm512_set1_ps, _mm512_setzero_ps, _mm512_storeu_ps,
     };
+    use std::ops::Range;
 
-    use super::{Geometry, for_each_block, tap_row};
+    use super::{Geometry, for_each_block, input_offset, tap_offset};
 
     /// Safety (every function here): AVX-512F available; slices sized as checked by
-    /// `check_sizes`, with C_out = 16·R.
+    /// `check_sizes`, with C_out = 16·R; `y` starts at output frame `frames.start`.
     #[target_feature(enable = "avx512f")]
     pub(super) unsafe fn forward<const R: usize, const P: usize>(
         g: &Geometry,
@@ -124,68 +151,61 @@ mod avx512 {
         w: &[f32],
         bias: &[f32],
         y: &mut [f32],
+        frames: Range<usize>,
     ) {
-        let co = 16 * R;
-        let [kt, kh, kw] = g.spec.kernel;
-        let sw = g.spec.stride[1];
-        let relu = g.spec.relu;
         let (x, w, y) = (xp.as_ptr(), w.as_ptr(), y.as_mut_ptr());
         // Safety: bias has 16·R entries.
         let b: [__m512; R] = std::array::from_fn(|r| unsafe { _mm512_loadu_ps(bias.as_ptr().add(16 * r)) });
-        for_each_block(g, P, |to, ho, wo0, len| {
-            let out = ((to * g.ho + ho) * g.wo + wo0) * co;
-            // Safety: positions wo0..wo0+len of this row and their taps are in bounds.
+        let first = frames.start * g.ps();
+        for_each_block(g, frames, P, |q0, len| {
+            // Safety: positions q0..q0+len and their taps are in bounds.
             unsafe {
+                let out = y.add((q0 - first) * 16 * R);
                 if len == P {
-                    block::<R, P>(g, x, w, &b, to, ho, wo0, kt, kh, kw, sw, relu, y.add(out));
+                    block::<R, P>(g, x, w, &b, q0, out);
                 } else {
-                    block::<R, 1>(g, x, w, &b, to, ho, wo0, kt, kh, kw, sw, relu, y.add(out));
+                    block::<R, 1>(g, x, w, &b, q0, out);
                 }
             }
         });
     }
 
     #[target_feature(enable = "avx512f")]
-    #[allow(clippy::too_many_arguments)]
     unsafe fn block<const R: usize, const N: usize>(
         g: &Geometry,
         x: *const f32,
         w: *const f32,
         bias: &[__m512; R],
-        to: usize,
-        ho: usize,
-        wo0: usize,
-        kt: usize,
-        kh: usize,
-        kw: usize,
-        sw: usize,
-        relu: bool,
+        q0: usize,
         out: *mut f32,
     ) {
         let co = 16 * R;
+        let [kt, kh, kw] = g.spec.kernel;
+        let run = kw * g.ci;
+        let base: [usize; N] = std::array::from_fn(|j| input_offset(g, q0 + j));
         let mut acc = [*bias; N];
-        let mut tap = 0;
+        let mut row = w;
         for dt in 0..kt {
             for dh in 0..kh {
-                let row = tap_row(g, to, ho, wo0, dt, dh);
-                for dx in 0..kw {
-                    // Safety: tap < k_t·k_h·k_w weight rows of 16·R floats.
-                    let wv: [__m512; R] = std::array::from_fn(|r| unsafe { _mm512_loadu_ps(w.add(tap * co + 16 * r)) });
-                    for (j, a) in acc.iter_mut().enumerate() {
-                        // Safety: inside the padded frames (see check_sizes).
-                        let xv = _mm512_set1_ps(unsafe { *x.add(row + j * sw + dx) });
+                let off = tap_offset(g, dt, dh);
+                for i in 0..run {
+                    // Safety: k_t·k_h·k_w·C_in weight rows of 16·R floats.
+                    let wv: [__m512; R] = std::array::from_fn(|r| unsafe { _mm512_loadu_ps(row.add(16 * r)) });
+                    row = unsafe { row.add(co) };
+                    for (a, &bj) in acc.iter_mut().zip(&base) {
+                        // Safety: inside the padded input (see check_sizes).
+                        let xv = _mm512_set1_ps(unsafe { *x.add(bj + off + i) });
                         for r in 0..R {
                             a[r] = _mm512_fmadd_ps(xv, wv[r], a[r]);
                         }
                     }
-                    tap += 1;
                 }
             }
         }
         let zero = _mm512_setzero_ps();
         for (j, a) in acc.iter().enumerate() {
             for (r, &lane) in a.iter().enumerate() {
-                let v = if relu { _mm512_max_ps(lane, zero) } else { lane };
+                let v = if g.spec.relu { _mm512_max_ps(lane, zero) } else { lane };
                 // Safety: N positions of 16·R floats from `out`.
                 unsafe { _mm512_storeu_ps(out.add(j * co + 16 * r), v) };
             }
@@ -200,13 +220,13 @@ mod avx512 {
         dw: &mut [f32],
     ) {
         let (x, gy, dw) = (xp.as_ptr(), gy.as_ptr(), dw.as_mut_ptr());
-        for_each_block(g, P, |to, ho, wo0, len| {
+        for_each_block(g, 0..g.to, P, |q0, len| {
             // Safety: as in `forward`.
             unsafe {
                 if len == P {
-                    grad_block::<R, P>(g, x, gy, dw, to, ho, wo0);
+                    grad_block::<R, P>(g, x, gy, dw, q0);
                 } else {
-                    grad_block::<R, 1>(g, x, gy, dw, to, ho, wo0);
+                    grad_block::<R, 1>(g, x, gy, dw, q0);
                 }
             }
         });
@@ -218,29 +238,26 @@ mod avx512 {
         x: *const f32,
         gy: *const f32,
         dw: *mut f32,
-        to: usize,
-        ho: usize,
-        wo0: usize,
+        q0: usize,
     ) {
         let co = 16 * R;
         let [kt, kh, kw] = g.spec.kernel;
-        let sw = g.spec.stride[1];
-        let first = ((to * g.ho + ho) * g.wo + wo0) * co;
+        let run = kw * g.ci;
+        let base: [usize; N] = std::array::from_fn(|j| input_offset(g, q0 + j));
         // Safety: N gradient rows of this block.
         let gr: [[__m512; R]; N] = std::array::from_fn(|j| {
-            std::array::from_fn(|r| unsafe { _mm512_loadu_ps(gy.add(first + j * co + 16 * r)) })
+            std::array::from_fn(|r| unsafe { _mm512_loadu_ps(gy.add((q0 + j) * co + 16 * r)) })
         });
-        let mut tap = 0;
+        let mut dst = dw;
         for dt in 0..kt {
             for dh in 0..kh {
-                let row = tap_row(g, to, ho, wo0, dt, dh);
-                for dx in 0..kw {
-                    // Safety: tap < k_t·k_h·k_w gradient rows of 16·R floats.
-                    let dst = unsafe { dw.add(tap * co) };
+                let off = tap_offset(g, dt, dh);
+                for i in 0..run {
+                    // Safety: k_t·k_h·k_w·C_in gradient rows of 16·R floats.
                     let mut acc: [__m512; R] = std::array::from_fn(|r| unsafe { _mm512_loadu_ps(dst.add(16 * r)) });
-                    for (j, gj) in gr.iter().enumerate() {
-                        // Safety: inside the padded frames (see check_sizes).
-                        let xv = _mm512_set1_ps(unsafe { *x.add(row + j * sw + dx) });
+                    for (gj, &bj) in gr.iter().zip(&base) {
+                        // Safety: inside the padded input (see check_sizes).
+                        let xv = _mm512_set1_ps(unsafe { *x.add(bj + off + i) });
                         for r in 0..R {
                             acc[r] = _mm512_fmadd_ps(xv, gj[r], acc[r]);
                         }
@@ -249,7 +266,7 @@ mod avx512 {
                         // Safety: as above.
                         unsafe { _mm512_storeu_ps(dst.add(16 * r), *a) };
                     }
-                    tap += 1;
+                    dst = unsafe { dst.add(co) };
                 }
             }
         }
@@ -272,22 +289,25 @@ fn portable_forward_impl<const CO: usize, const P: usize, const FMA: bool>(
     w: &[f32],
     bias: &[f32],
     y: &mut [f32],
+    frames: Range<usize>,
 ) {
-    let (taps, _) = w.as_chunks::<CO>();
+    let (rows, _) = w.as_chunks::<CO>();
     let bias: [f32; CO] = bias.try_into().expect("bias has C_out entries");
     let (outs, _) = y.as_chunks_mut::<CO>();
     let [kt, kh, kw] = g.spec.kernel;
-    let sw = g.spec.stride[1];
-    for_each_block(g, P, |to, ho, wo0, len| {
+    let run = kw * g.ci;
+    let first = frames.start * g.ps();
+    for_each_block(g, frames, P, |q0, len| {
+        let base: [usize; P] = std::array::from_fn(|j| input_offset(g, q0 + j.min(len - 1)));
         let mut acc = [bias; P];
-        let mut tap = taps.iter();
+        let mut row = rows.iter();
         for dt in 0..kt {
             for dh in 0..kh {
-                let row = &xp[tap_row(g, to, ho, wo0, dt, dh)..];
-                for dx in 0..kw {
-                    let wr = tap.next().expect("k_t·k_h·k_w weight rows");
-                    for (j, a) in acc[..len].iter_mut().enumerate() {
-                        let xv = row[j * sw + dx];
+                let off = tap_offset(g, dt, dh);
+                for i in 0..run {
+                    let wr = row.next().expect("k_t·k_h·k_w·C_in weight rows");
+                    for (a, &bj) in acc[..len].iter_mut().zip(&base) {
+                        let xv = xp[bj + off + i];
                         for c in 0..CO {
                             a[c] = mul_add::<FMA>(xv, wr[c], a[c]);
                         }
@@ -295,8 +315,7 @@ fn portable_forward_impl<const CO: usize, const P: usize, const FMA: bool>(
                 }
             }
         }
-        let first = (to * g.ho + ho) * g.wo + wo0;
-        for (o, a) in outs[first..first + len].iter_mut().zip(&acc) {
+        for (o, a) in outs[q0 - first..q0 - first + len].iter_mut().zip(&acc) {
             for c in 0..CO {
                 o[c] = if g.spec.relu { a[c].max(0.0) } else { a[c] };
             }
@@ -314,24 +333,24 @@ fn portable_weight_grad_impl<const CO: usize, const P: usize, const FMA: bool>(
     let (grads, _) = gy.as_chunks::<CO>();
     let (dws, _) = dw.as_chunks_mut::<CO>();
     let [kt, kh, kw] = g.spec.kernel;
-    let sw = g.spec.stride[1];
-    for_each_block(g, P, |to, ho, wo0, len| {
-        let first = (to * g.ho + ho) * g.wo + wo0;
-        let gr = &grads[first..first + len];
-        let mut tap = dws.iter_mut();
+    let run = kw * g.ci;
+    for_each_block(g, 0..g.to, P, |q0, len| {
+        let base: [usize; P] = std::array::from_fn(|j| input_offset(g, q0 + j.min(len - 1)));
+        let gr = &grads[q0..q0 + len];
+        let mut dst = dws.iter_mut();
         for dt in 0..kt {
             for dh in 0..kh {
-                let row = &xp[tap_row(g, to, ho, wo0, dt, dh)..];
-                for dx in 0..kw {
-                    let dst = tap.next().expect("k_t·k_h·k_w gradient rows");
-                    let mut acc = *dst;
-                    for (j, gj) in gr.iter().enumerate() {
-                        let xv = row[j * sw + dx];
+                let off = tap_offset(g, dt, dh);
+                for i in 0..run {
+                    let d = dst.next().expect("k_t·k_h·k_w·C_in gradient rows");
+                    let mut acc = *d;
+                    for (gj, &bj) in gr.iter().zip(&base) {
+                        let xv = xp[bj + off + i];
                         for c in 0..CO {
                             acc[c] = mul_add::<FMA>(xv, gj[c], acc[c]);
                         }
                     }
-                    *dst = acc;
+                    *d = acc;
                 }
             }
         }
@@ -359,15 +378,14 @@ macro_rules! avx2_or_baseline {
     };
 }
 
-avx2_or_baseline!(portable_forward_lanes(g: &Geometry, xp: &[f32], w: &[f32], bias: &[f32], y: &mut [f32]) => portable_forward_impl);
+avx2_or_baseline!(portable_forward_lanes(g: &Geometry, xp: &[f32], w: &[f32], bias: &[f32], y: &mut [f32], frames: Range<usize>) => portable_forward_impl);
 avx2_or_baseline!(portable_weight_grad_lanes(g: &Geometry, xp: &[f32], gy: &[f32], dw: &mut [f32]) => portable_weight_grad_impl);
 
-fn portable_forward(g: &Geometry, xp: &[f32], w: &[f32], bias: &[f32], y: &mut [f32]) {
+fn portable_forward(g: &Geometry, xp: &[f32], w: &[f32], bias: &[f32], y: &mut [f32], frames: Range<usize>) {
     match g.co {
-        8 => portable_forward_lanes::<8, 8>(g, xp, w, bias, y),
-        16 => portable_forward_lanes::<16, 4>(g, xp, w, bias, y),
-        32 => portable_forward_lanes::<32, 2>(g, xp, w, bias, y),
-        64 => portable_forward_lanes::<64, 1>(g, xp, w, bias, y),
+        8 => portable_forward_lanes::<8, 8>(g, xp, w, bias, y, frames),
+        16 => portable_forward_lanes::<16, 4>(g, xp, w, bias, y, frames),
+        32 => portable_forward_lanes::<32, 2>(g, xp, w, bias, y, frames),
         co => unreachable!("no direct kernel for C_out {co}"),
     }
 }
@@ -377,7 +395,6 @@ fn portable_weight_grad(g: &Geometry, xp: &[f32], gy: &[f32], dw: &mut [f32]) {
         8 => portable_weight_grad_lanes::<8, 8>(g, xp, gy, dw),
         16 => portable_weight_grad_lanes::<16, 4>(g, xp, gy, dw),
         32 => portable_weight_grad_lanes::<32, 2>(g, xp, gy, dw),
-        64 => portable_weight_grad_lanes::<64, 1>(g, xp, gy, dw),
         co => unreachable!("no direct kernel for C_out {co}"),
     }
 }
@@ -391,29 +408,37 @@ mod tests {
     use crate::ops::ConvSpec;
 
     /// The dispatched kernels (AVX-512 on CPUs that have it) equal the portable ones
-    /// for every lane count, odd row lengths (block remainders) and ReLU on and off.
+    /// for every lane count, one and several input channels, odd row lengths (block
+    /// remainders) and ReLU on and off.
     #[test]
     fn dispatched_kernels_equal_the_portable_ones() {
         let mut rng = ChaCha8Rng::seed_from_u64(5);
-        for (co, spec, (t, h, w)) in [
-            (16, ConvSpec::spatiotemporal(2, 2, 4, 2, 1), (5, 13, 21)),
-            (32, ConvSpec::spatiotemporal(2, 1, 3, 1, 1), (3, 7, 11)),
-            (64, ConvSpec::spatial(4, 2, 2), (1, 9, 10)),
-            (8, ConvSpec::spatiotemporal(3, 1, 3, 3, 0), (4, 9, 12)),
+        for (co, ci, spec, (t, h, w)) in [
+            (16, 1, ConvSpec::spatiotemporal(2, 2, 4, 2, 1), (5, 13, 21)),
+            (32, 1, ConvSpec::spatiotemporal(2, 1, 3, 1, 1), (3, 7, 11)),
+            (32, 16, ConvSpec::spatiotemporal(2, 2, 4, 2, 1), (4, 10, 13)),
+            (16, 5, ConvSpec::spatial(4, 2, 2), (1, 9, 10)),
+            (8, 2, ConvSpec::spatiotemporal(3, 1, 3, 3, 0), (4, 9, 12)),
         ] {
             for relu in [false, true] {
                 let spec = ConvSpec { relu, ..spec };
-                let g = Geometry::new(spec, &[1, t, h, w, 1], &[spec.weight_rows(1), co]).unwrap();
+                let g = Geometry::new(spec, &[1, t, h, w, ci], &[spec.weight_rows(ci), co]).unwrap();
                 let mut rand_vec = |n: usize| -> Vec<f32> { (0..n).map(|_| rng.random_range(-1.0..1.0)).collect() };
                 let x = rand_vec(g.in_len());
-                let wt = rand_vec(spec.weight_rows(1) * co);
+                let wt = rand_vec(spec.weight_rows(ci) * co);
                 let bias = rand_vec(co);
                 let gy = rand_vec(g.out_len());
                 let mut xp = vec![0.0; g.padded_len()];
                 pad_frames(&g, &x, &mut xp);
                 let (mut y1, mut y2) = (vec![0.0; g.out_len()], vec![0.0; g.out_len()]);
-                forward(&g, &xp, &wt, &bias, &mut y1);
-                portable_forward(&g, &xp, &wt, &bias, &mut y2);
+                forward(&g, &xp, &wt, &bias, &mut y1, 0..g.to);
+                portable_forward(&g, &xp, &wt, &bias, &mut y2, 0..g.to);
+                // Frame by frame (how a single sample is split over threads).
+                let mut y3 = vec![0.0; g.out_len()];
+                for (to, yf) in y3.chunks_mut(g.ps() * co).enumerate() {
+                    forward(&g, &xp, &wt, &bias, yf, to..to + 1);
+                }
+                assert_eq!(y1, y3, "C_out {co}: frame-by-frame forward differs");
                 let (mut d1, mut d2) = (vec![0.5; wt.len()], vec![0.5; wt.len()]);
                 weight_grad(&g, &xp, &gy, &mut d1);
                 portable_weight_grad(&g, &xp, &gy, &mut d2);
