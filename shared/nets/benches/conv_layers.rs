@@ -1,6 +1,6 @@
-//! Per-layer profile of the custom convolution: ms and GFLOP/s of the forward pass
-//! and of forward + backward for every image layer of the 3D-TCN and the
-//! frame-stacking encoder, at the learner's batch sizes. Use it to see which layer
+//! Per-layer profile of the custom convolution: ms (best of the repetitions) and
+//! GFLOP/s of the forward pass and of forward + backward for every image layer of
+//! the 3D-TCN and the frame-stacking encoder, at the learner's batch sizes. Use it to see which layer
 //! an optimisation of `ops::conv` should target; `dsac_update` (learner) measures
 //! the whole update.
 //!
@@ -67,9 +67,9 @@ fn stack_layers(batch: usize, history: usize, size: usize) -> Vec<Layer> {
         .collect()
 }
 
-fn median(mut v: Vec<f64>) -> f64 {
-    v.sort_by(|a, b| a.partial_cmp(b).unwrap());
-    v[v.len() / 2]
+/// The fastest repetition (other tenants of a shared machine only ever add time).
+fn best(v: &[f64]) -> f64 {
+    v.iter().copied().fold(f64::INFINITY, f64::min)
 }
 
 fn flops(l: &Layer) -> f64 {
@@ -112,7 +112,7 @@ fn main() -> candle_core::Result<()> {
                 drop((y, grads));
             }
             let gf = flops(&l) / 1e9;
-            let (f, fb) = (median(fwd), median(both));
+            let (f, fb) = (best(&fwd), best(&both));
             println!(
                 "| {} | {:?} | {} | {gf:.2} | {f:.1} | {:.0} | {fb:.1} | {:.0} |",
                 l.name,

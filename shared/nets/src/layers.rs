@@ -4,7 +4,7 @@ use candle_core::{Tensor, Var};
 use rand_chacha::ChaCha8Rng;
 
 use crate::error::Result;
-use crate::ops::{ConvSpec, conv};
+use crate::ops::{ConvSpec, conv, linear};
 use crate::params::ParamStore;
 
 /// `y = x·W + b` with W stored as (in, out). Initialised like PyTorch's
@@ -33,7 +33,7 @@ impl Dense {
 
     /// Apply to (B, in).
     pub fn forward(&self, x: &Tensor) -> Result<Tensor> {
-        Ok(x.contiguous()?.matmul(self.w.as_tensor())?.broadcast_add(self.b.as_tensor())?)
+        Ok(linear(x, self.w.as_tensor(), self.b.as_tensor())?)
     }
 
     /// Output width.

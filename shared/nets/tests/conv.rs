@@ -89,7 +89,14 @@ fn cases() -> Vec<Case> {
             c_out: 8,
             spec: s([1, 4, 4], [2, 2], [1, 1], 1),
         },
-        // One sample: its output frames are split over the threads.
+        // One sample: its output positions are split over the threads (inference),
+        // with the direct kernel even beyond the training path's weight limit.
+        Case {
+            name: "1 sample 16ch C_out 32 (inference path)",
+            input: [1, 4, 10, 10, 16],
+            c_out: 32,
+            spec: s([2, 4, 4], [2, 2], [1, 1], 1),
+        },
         Case {
             name: "direct 1 sample 16ch",
             input: [1, 5, 9, 9, 16],
@@ -255,4 +262,51 @@ fn shape_errors_name_the_problem() {
     let w = Tensor::zeros((2 * 9 * 2, 3), candle_core::DType::F32, &Device::Cpu).unwrap();
     let err = conv(&x, &w, &b, ConvSpec::spatiotemporal(2, 1, 3, 1, 0)).unwrap_err().to_string();
     assert!(err.contains("does not fit"), "{err}");
+}
+
+/// The fully connected op equals candle's matmul + bias (row-streaming kernel for
+/// few rows, gemm beyond), and its gradients match finite differences.
+#[test]
+fn linear_equals_matmul_and_finite_differences() {
+    use pednav_nets::ops::linear;
+    let mut rng = ChaCha8Rng::seed_from_u64(9);
+    for m in [1, 3, 8, 9, 40] {
+        let (k, n) = (37, 21);
+        let x = Var::from_tensor(&random(&mut rng, &[m, k])).unwrap();
+        let w = Var::from_tensor(&random(&mut rng, &[k, n])).unwrap();
+        let b = Var::from_tensor(&random(&mut rng, &[n])).unwrap();
+        let ours = linear(&x, &w, &b).unwrap();
+        let reference = x.matmul(&w).unwrap().broadcast_add(&b).unwrap();
+        for (u, v) in to_vec(&ours).iter().zip(to_vec(&reference)) {
+            assert!((u - v).abs() <= 1e-5 * (1.0 + v.abs()), "M {m}: {u} vs {v}");
+        }
+        let r = random(&mut rng, ours.dims());
+        let grads = (&ours * &r).unwrap().sum_all().unwrap().backward().unwrap();
+        let loss = |x: &Tensor, w: &Tensor, b: &Tensor| -> f64 {
+            to_vec(&linear(x, w, b).unwrap()).iter().zip(to_vec(&r)).map(|(a, b)| *a as f64 * b as f64).sum()
+        };
+        for (which, var) in [("input", &x), ("weight", &w), ("bias", &b)] {
+            let analytic = to_vec(grads.get(var).unwrap());
+            let base = to_vec(var.as_tensor());
+            for _ in 0..15 {
+                let i = rng.random_range(0..base.len());
+                let shifted = |d: f32| {
+                    let mut v = base.clone();
+                    v[i] += d;
+                    Tensor::from_vec(v, var.dims(), &Device::Cpu).unwrap()
+                };
+                let (lp, lm) = match which {
+                    "input" => (loss(&shifted(0.5), &w, &b), loss(&shifted(-0.5), &w, &b)),
+                    "weight" => (loss(&x, &shifted(0.5), &b), loss(&x, &shifted(-0.5), &b)),
+                    _ => (loss(&x, &w, &shifted(0.5)), loss(&x, &w, &shifted(-0.5))),
+                };
+                let numeric = lp - lm;
+                assert!(
+                    (analytic[i] as f64 - numeric).abs() <= 1e-3 * (1.0 + numeric.abs()),
+                    "M {m} d/d{which}[{i}]: {} vs {numeric}",
+                    analytic[i]
+                );
+            }
+        }
+    }
 }

@@ -168,6 +168,12 @@ impl Geometry {
     /// True when the direct kernel ([`direct`]) computes the forward pass and the
     /// weight gradient: a lane-sized C_out ≤ 32, a spatial kernel, and weights that
     /// stay in the L1 cache (per-layer measurements in `benches/conv_layers.rs`).
+    /// With fewer samples than threads (actor inference) the direct kernel takes
+    /// every layer with a lane-sized C_out ≤ 32, whatever its weights: there the
+    /// column matrix is pure overhead (measured in the streaming policy step).
+    fn direct_for_inference(&self) -> bool {
+        direct::LANES.contains(&self.co) && !self.spatially_pointwise()
+    }
     fn direct(&self) -> bool {
         direct::LANES.contains(&self.co)
             && !self.spatially_pointwise()
@@ -268,7 +274,7 @@ mod direct;
 
 /// `dst (m×n) = [dst +] lhs (m×k) · rhs (k×n)` with explicit strides (row, column).
 #[allow(clippy::too_many_arguments)]
-fn matmul(
+pub(super) fn matmul(
     m: usize,
     n: usize,
     k: usize,
@@ -319,6 +325,75 @@ fn matmul(
     }
 }
 
+thread_local! {
+    /// Scratch buffers of this thread (column matrices, padded inputs, masked
+    /// gradients), kept between calls: allocating and zeroing up to megabytes per
+    /// call showed in the actor's profile.
+    static POOL: std::cell::RefCell<Vec<Vec<f32>>> = const { std::cell::RefCell::new(Vec::new()) };
+}
+
+/// Buffers a thread keeps for reuse.
+const POOL_SIZE: usize = 4;
+
+/// A scratch buffer of `len` floats with unspecified contents (every user writes
+/// what it reads), returned to its thread's pool on drop.
+struct Pooled {
+    buf: Vec<f32>,
+    len: usize,
+}
+
+impl Pooled {
+    fn new(len: usize) -> Pooled {
+        let mut buf = POOL.with(|p| {
+            let mut p = p.borrow_mut();
+            // The smallest buffer that is large enough, else the largest (grown).
+            let pick = p
+                .iter()
+                .enumerate()
+                .filter(|(_, b)| b.len() >= len)
+                .min_by_key(|(_, b)| b.len())
+                .or_else(|| p.iter().enumerate().max_by_key(|(_, b)| b.len()))
+                .map(|(i, _)| i);
+            pick.map(|i| p.swap_remove(i)).unwrap_or_default()
+        });
+        if buf.len() < len {
+            buf.resize(len, 0.0);
+        }
+        Pooled { buf, len }
+    }
+}
+
+impl std::ops::Deref for Pooled {
+    type Target = [f32];
+    fn deref(&self) -> &[f32] {
+        &self.buf[..self.len]
+    }
+}
+
+impl std::ops::DerefMut for Pooled {
+    fn deref_mut(&mut self) -> &mut [f32] {
+        &mut self.buf[..self.len]
+    }
+}
+
+impl Drop for Pooled {
+    fn drop(&mut self) {
+        let buf = std::mem::take(&mut self.buf);
+        if buf.is_empty() {
+            return;
+        }
+        // A thread that is exiting has no pool left; the buffer is simply freed.
+        let _ = POOL.try_with(|p| {
+            let mut p = p.borrow_mut();
+            if p.len() < POOL_SIZE {
+                p.push(buf);
+            } else if let Some(small) = p.iter_mut().min_by_key(|b| b.len()).filter(|b| b.len() < buf.len()) {
+                *small = buf;
+            }
+        });
+    }
+}
+
 /// Parallelism inside one gemm: all threads when there are fewer samples than threads.
 fn inner_parallelism(batch: usize) -> Parallelism {
     let threads = rayon::current_num_threads();
@@ -336,16 +411,18 @@ fn forward(g: &Geometry, x: &[f32], w: &[f32], bias: &[f32]) -> Vec<f32> {
     let par = inner_parallelism(g.b);
     let pointwise = g.spatially_pointwise();
     let direct = g.direct();
-    if direct && matches!(par, Parallelism::Rayon(_)) {
+    if g.direct_for_inference() && matches!(par, Parallelism::Rayon(_)) {
         // Fewer samples than threads (actor inference): split each sample's output
-        // frames over the pool instead.
-        let mut xp = vec![0f32; g.padded_len()];
-        let frame_len = (g.ps() * co).max(1);
+        // positions over the pool instead, in whole blocks.
+        let mut xp = Pooled::new(g.padded_len());
+        let positions = g.to * g.ps();
+        let chunk = positions.div_ceil(rayon::current_num_threads()).div_ceil(8).max(1) * 8;
         for (y, xb) in out.chunks_mut(g.out_len().max(1)).zip(x.chunks(g.in_len().max(1))) {
             direct::pad_frames(g, xb, &mut xp);
-            y.par_chunks_mut(frame_len)
-                .enumerate()
-                .for_each(|(to, yf)| direct::forward(g, &xp, w, bias, yf, to..to + 1));
+            y.par_chunks_mut(chunk * co).enumerate().for_each(|(i, yc)| {
+                let q0 = i * chunk;
+                direct::forward(g, &xp, w, bias, yc, q0..q0 + yc.len() / co)
+            });
         }
         return out;
     }
@@ -354,18 +431,18 @@ fn forward(g: &Geometry, x: &[f32], w: &[f32], bias: &[f32]) -> Vec<f32> {
         .with_min_len(min_len(g.b))
         .for_each_init(
             || {
-                if direct {
-                    vec![0f32; g.padded_len()]
+                Pooled::new(if direct {
+                    g.padded_len()
                 } else if pointwise {
-                    Vec::new()
+                    0
                 } else {
-                    vec![0f32; g.cols_len()]
-                }
+                    g.cols_len()
+                })
             },
             |scratch, (y, xb)| {
                 if direct {
                     direct::pad_frames(g, xb, scratch);
-                    direct::forward(g, scratch, w, bias, y, 0..g.to);
+                    direct::forward(g, scratch, w, bias, y, 0..g.to * g.ps());
                     return;
                 }
                 let lhs: &[f32] = if pointwise {
@@ -417,22 +494,22 @@ fn backward(
     struct Scratch {
         dw: Vec<f32>,
         db: Vec<f32>,
-        cols: Vec<f32>,
-        dcols: Vec<f32>,
-        gy: Vec<f32>,
+        cols: Pooled,
+        dcols: Pooled,
+        gy: Pooled,
     }
     let new_scratch = || Scratch {
         dw: vec![0f32; kt * ks * co],
         db: vec![0f32; co],
-        cols: if direct {
-            vec![0f32; g.padded_len()]
+        cols: Pooled::new(if direct {
+            g.padded_len()
         } else if pointwise {
-            Vec::new()
+            0
         } else {
-            vec![0f32; g.cols_len()]
-        },
-        dcols: if need_dx && !pointwise { vec![0f32; g.cols_len()] } else { Vec::new() },
-        gy: vec![0f32; g.out_len()],
+            g.cols_len()
+        }),
+        dcols: Pooled::new(if need_dx && !pointwise { g.cols_len() } else { 0 }),
+        gy: Pooled::new(g.out_len()),
     };
     let per_sample = |mut s: Scratch, xb: &[f32], yb: &[f32], dyb: &[f32], dxb: Option<&mut [f32]>| {
         // Gradient at the pre-activation: the ReLU mask comes from the saved output.
@@ -503,7 +580,7 @@ fn backward(
     (need_dx.then_some(dx), total.dw, total.db)
 }
 
-fn cpu_f32<'a>(s: &'a CpuStorage, l: &Layout, what: &str) -> candle_core::Result<&'a [f32]> {
+pub(super) fn cpu_f32<'a>(s: &'a CpuStorage, l: &Layout, what: &str) -> candle_core::Result<&'a [f32]> {
     let data = s.as_slice::<f32>()?;
     match l.contiguous_offsets() {
         Some((a, b)) => Ok(&data[a..b]),

@@ -1,12 +1,15 @@
-//! Operations candle 0.11 lacks: the channel-last convolution kernel, softplus,
-//! a fast frames-to-channels transpose, and a few numerically careful helpers.
+//! Operations candle 0.11 lacks or runs slowly here: the channel-last convolution
+//! kernel, a fully connected layer fast at one row, softplus, a fast
+//! frames-to-channels transpose, and a few numerically careful helpers.
 
 pub mod conv;
+pub mod linear;
 
 use candle_core::{Result, Tensor};
 use rayon::prelude::*;
 
 pub use conv::{ConvSpec, conv, conv_reference};
+pub use linear::linear;
 
 /// softplus(x) = log(1 + eˣ), computed as max(x, 0) + log(1 + e^{−|x|}) so it
 /// neither overflows for large x nor loses precision for very negative x.

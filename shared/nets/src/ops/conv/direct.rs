@@ -58,24 +58,24 @@ fn check_sizes(g: &Geometry, xp: &[f32], w: &[f32]) {
     debug_assert!(g.spec.output_size(g.t, g.h, g.w) == Some((g.to, g.ho, g.wo)));
 }
 
-/// Forward of output frames `frames` of one sample from its padded input: y
-/// (frames.len()·H_out·W_out, C_out).
-pub(super) fn forward(g: &Geometry, xp: &[f32], w: &[f32], bias: &[f32], y: &mut [f32], frames: Range<usize>) {
+/// Forward of output positions `positions` (linear over T_out·H_out·W_out) of one
+/// sample from its padded input: y (positions.len(), C_out).
+pub(super) fn forward(g: &Geometry, xp: &[f32], w: &[f32], bias: &[f32], y: &mut [f32], positions: Range<usize>) {
     check_sizes(g, xp, w);
-    assert!(frames.end <= g.to && y.len() >= frames.len() * g.ps() * g.co, "output too short");
+    assert!(positions.end <= g.to * g.ps() && y.len() >= positions.len() * g.co, "output too short");
     assert_eq!(bias.len(), g.co, "bias has C_out entries");
     #[cfg(target_arch = "x86_64")]
     if std::arch::is_x86_feature_detected!("avx512f") {
         // Safety: the CPU has AVX-512F; sizes were checked above.
         unsafe {
             match g.co {
-                16 => return avx512::forward::<1, 8>(g, xp, w, bias, y, frames),
-                32 => return avx512::forward::<2, 4>(g, xp, w, bias, y, frames),
+                16 => return avx512::forward::<1, 8>(g, xp, w, bias, y, positions),
+                32 => return avx512::forward::<2, 4>(g, xp, w, bias, y, positions),
                 _ => {}
             }
         }
     }
-    portable_forward(g, xp, w, bias, y, frames);
+    portable_forward(g, xp, w, bias, y, positions);
 }
 
 /// dW (k_t·k_h·k_w, C_out) += Σ_positions x_tap · gy of one sample (gy already
@@ -97,14 +97,13 @@ pub(super) fn weight_grad(g: &Geometry, xp: &[f32], gy: &[f32], dw: &mut [f32]) 
     portable_weight_grad(g, xp, gy, dw);
 }
 
-/// Visit blocks of consecutive output positions q (linear over T_out·H_out·W_out,
-/// the output's memory order) of frames `frames`: `f(q0, len)` with `len` = `p`, and
+/// Visit blocks of consecutive output positions q in `positions` (linear over
+/// T_out·H_out·W_out, the output's memory order): `f(q0, len)` with `len` = `p`, and
 /// single positions for the remainder. A block may span output rows and frames:
-/// each position has its own input offset ([`input_offset`]).
+/// each position has its own input offset ([`input_offsets`]).
 #[inline(always)]
-fn for_each_block(g: &Geometry, frames: Range<usize>, p: usize, mut f: impl FnMut(usize, usize)) {
-    let per_frame = g.ps();
-    let (start, end) = (frames.start * per_frame, frames.end * per_frame);
+fn for_each_block(positions: Range<usize>, p: usize, mut f: impl FnMut(usize, usize)) {
+    let (start, end) = (positions.start, positions.end);
     let mut q = start;
     while q + p <= end {
         f(q, p);
@@ -115,13 +114,27 @@ fn for_each_block(g: &Geometry, frames: Range<usize>, p: usize, mut f: impl FnMu
     }
 }
 
-/// Offset in the padded input of tap (0, 0, 0), channel 0, of output position q.
+/// Offsets in the padded input of tap (0, 0, 0), channel 0, of output positions
+/// q0 .. q0 + N (one division pair per block, then stepping along the rows).
 #[inline(always)]
-fn input_offset(g: &Geometry, q: usize) -> usize {
+fn input_offsets<const N: usize>(g: &Geometry, q0: usize) -> [usize; N] {
     let (hp, wp) = g.padded();
-    let (wo, rest) = (q % g.wo, q / g.wo);
-    let (ho, to) = (rest % g.ho, rest / g.ho);
-    ((to * hp + ho * g.spec.stride[0]) * wp + wo * g.spec.stride[1]) * g.ci
+    let [sh, sw] = g.spec.stride;
+    let (mut wo, rest) = (q0 % g.wo, q0 / g.wo);
+    let (mut ho, mut to) = (rest % g.ho, rest / g.ho);
+    std::array::from_fn(|_| {
+        let offset = ((to * hp + ho * sh) * wp + wo * sw) * g.ci;
+        wo += 1;
+        if wo == g.wo {
+            wo = 0;
+            ho += 1;
+            if ho == g.ho {
+                ho = 0;
+                to += 1;
+            }
+        }
+        offset
+    })
 }
 
 /// Offset of tap (dt, dh, 0) relative to tap (0, 0, 0): its k_w·C_in inputs follow
@@ -140,10 +153,10 @@ mod avx512 {
     };
     use std::ops::Range;
 
-    use super::{Geometry, for_each_block, input_offset, tap_offset};
+    use super::{Geometry, for_each_block, input_offsets, tap_offset};
 
     /// Safety (every function here): AVX-512F available; slices sized as checked by
-    /// `check_sizes`, with C_out = 16·R; `y` starts at output frame `frames.start`.
+    /// `check_sizes`, with C_out = 16·R; `y` starts at output position `positions.start`.
     #[target_feature(enable = "avx512f")]
     pub(super) unsafe fn forward<const R: usize, const P: usize>(
         g: &Geometry,
@@ -151,13 +164,13 @@ mod avx512 {
         w: &[f32],
         bias: &[f32],
         y: &mut [f32],
-        frames: Range<usize>,
+        positions: Range<usize>,
     ) {
         let (x, w, y) = (xp.as_ptr(), w.as_ptr(), y.as_mut_ptr());
         // Safety: bias has 16·R entries.
         let b: [__m512; R] = std::array::from_fn(|r| unsafe { _mm512_loadu_ps(bias.as_ptr().add(16 * r)) });
-        let first = frames.start * g.ps();
-        for_each_block(g, frames, P, |q0, len| {
+        let first = positions.start;
+        for_each_block(positions, P, |q0, len| {
             // Safety: positions q0..q0+len and their taps are in bounds.
             unsafe {
                 let out = y.add((q0 - first) * 16 * R);
@@ -182,7 +195,7 @@ mod avx512 {
         let co = 16 * R;
         let [kt, kh, kw] = g.spec.kernel;
         let run = kw * g.ci;
-        let base: [usize; N] = std::array::from_fn(|j| input_offset(g, q0 + j));
+        let base: [usize; N] = input_offsets(g, q0);
         let mut acc = [*bias; N];
         let mut row = w;
         for dt in 0..kt {
@@ -220,7 +233,7 @@ mod avx512 {
         dw: &mut [f32],
     ) {
         let (x, gy, dw) = (xp.as_ptr(), gy.as_ptr(), dw.as_mut_ptr());
-        for_each_block(g, 0..g.to, P, |q0, len| {
+        for_each_block(0..g.to * g.ps(), P, |q0, len| {
             // Safety: as in `forward`.
             unsafe {
                 if len == P {
@@ -243,7 +256,7 @@ mod avx512 {
         let co = 16 * R;
         let [kt, kh, kw] = g.spec.kernel;
         let run = kw * g.ci;
-        let base: [usize; N] = std::array::from_fn(|j| input_offset(g, q0 + j));
+        let base: [usize; N] = input_offsets(g, q0);
         // Safety: N gradient rows of this block.
         let gr: [[__m512; R]; N] = std::array::from_fn(|j| {
             std::array::from_fn(|r| unsafe { _mm512_loadu_ps(gy.add((q0 + j) * co + 16 * r)) })
@@ -289,16 +302,16 @@ fn portable_forward_impl<const CO: usize, const P: usize, const FMA: bool>(
     w: &[f32],
     bias: &[f32],
     y: &mut [f32],
-    frames: Range<usize>,
+    positions: Range<usize>,
 ) {
     let (rows, _) = w.as_chunks::<CO>();
     let bias: [f32; CO] = bias.try_into().expect("bias has C_out entries");
     let (outs, _) = y.as_chunks_mut::<CO>();
     let [kt, kh, kw] = g.spec.kernel;
     let run = kw * g.ci;
-    let first = frames.start * g.ps();
-    for_each_block(g, frames, P, |q0, len| {
-        let base: [usize; P] = std::array::from_fn(|j| input_offset(g, q0 + j.min(len - 1)));
+    let first = positions.start;
+    for_each_block(positions, P, |q0, len| {
+        let base: [usize; P] = input_offsets(g, q0);
         let mut acc = [bias; P];
         let mut row = rows.iter();
         for dt in 0..kt {
@@ -334,8 +347,8 @@ fn portable_weight_grad_impl<const CO: usize, const P: usize, const FMA: bool>(
     let (dws, _) = dw.as_chunks_mut::<CO>();
     let [kt, kh, kw] = g.spec.kernel;
     let run = kw * g.ci;
-    for_each_block(g, 0..g.to, P, |q0, len| {
-        let base: [usize; P] = std::array::from_fn(|j| input_offset(g, q0 + j.min(len - 1)));
+    for_each_block(0..g.to * g.ps(), P, |q0, len| {
+        let base: [usize; P] = input_offsets(g, q0);
         let gr = &grads[q0..q0 + len];
         let mut dst = dws.iter_mut();
         for dt in 0..kt {
@@ -378,14 +391,14 @@ macro_rules! avx2_or_baseline {
     };
 }
 
-avx2_or_baseline!(portable_forward_lanes(g: &Geometry, xp: &[f32], w: &[f32], bias: &[f32], y: &mut [f32], frames: Range<usize>) => portable_forward_impl);
+avx2_or_baseline!(portable_forward_lanes(g: &Geometry, xp: &[f32], w: &[f32], bias: &[f32], y: &mut [f32], positions: Range<usize>) => portable_forward_impl);
 avx2_or_baseline!(portable_weight_grad_lanes(g: &Geometry, xp: &[f32], gy: &[f32], dw: &mut [f32]) => portable_weight_grad_impl);
 
-fn portable_forward(g: &Geometry, xp: &[f32], w: &[f32], bias: &[f32], y: &mut [f32], frames: Range<usize>) {
+fn portable_forward(g: &Geometry, xp: &[f32], w: &[f32], bias: &[f32], y: &mut [f32], positions: Range<usize>) {
     match g.co {
-        8 => portable_forward_lanes::<8, 8>(g, xp, w, bias, y, frames),
-        16 => portable_forward_lanes::<16, 4>(g, xp, w, bias, y, frames),
-        32 => portable_forward_lanes::<32, 2>(g, xp, w, bias, y, frames),
+        8 => portable_forward_lanes::<8, 8>(g, xp, w, bias, y, positions),
+        16 => portable_forward_lanes::<16, 4>(g, xp, w, bias, y, positions),
+        32 => portable_forward_lanes::<32, 2>(g, xp, w, bias, y, positions),
         co => unreachable!("no direct kernel for C_out {co}"),
     }
 }
@@ -431,14 +444,16 @@ mod tests {
                 let mut xp = vec![0.0; g.padded_len()];
                 pad_frames(&g, &x, &mut xp);
                 let (mut y1, mut y2) = (vec![0.0; g.out_len()], vec![0.0; g.out_len()]);
-                forward(&g, &xp, &wt, &bias, &mut y1, 0..g.to);
-                portable_forward(&g, &xp, &wt, &bias, &mut y2, 0..g.to);
-                // Frame by frame (how a single sample is split over threads).
+                let all = 0..g.to * g.ps();
+                forward(&g, &xp, &wt, &bias, &mut y1, all.clone());
+                portable_forward(&g, &xp, &wt, &bias, &mut y2, all);
+                // In uneven chunks of positions (how a single sample is split over threads).
                 let mut y3 = vec![0.0; g.out_len()];
-                for (to, yf) in y3.chunks_mut(g.ps() * co).enumerate() {
-                    forward(&g, &xp, &wt, &bias, yf, to..to + 1);
+                for (i, yc) in y3.chunks_mut(13 * co).enumerate() {
+                    let q0 = i * 13;
+                    forward(&g, &xp, &wt, &bias, yc, q0..q0 + yc.len() / co);
                 }
-                assert_eq!(y1, y3, "C_out {co}: frame-by-frame forward differs");
+                assert_eq!(y1, y3, "C_out {co}: chunked forward differs");
                 let (mut d1, mut d2) = (vec![0.5; wt.len()], vec![0.5; wt.len()]);
                 weight_grad(&g, &xp, &gy, &mut d1);
                 portable_weight_grad(&g, &xp, &gy, &mut d2);
