@@ -542,11 +542,14 @@ fn backward(
             // (or straight into dx when im2col is the identity).
             let dcols: &mut [f32] = if pointwise { dxb } else { &mut s.dcols };
             if !pointwise {
-                dcols.fill(0.0);
+                // Tap 0 overwrites rows 0..T_out·P; only the rows it does not reach
+                // need zeros (the buffer comes from the pool with stale contents).
+                dcols[rows * ks..].fill(0.0);
             }
             for dt in 0..kt {
                 let off = g.tap_row(dt) * ks;
-                matmul(rows, ks, co, &mut dcols[off..], true, &s.gy, (co, 1), &w[dt * ks * co..], (1, co), par);
+                let accumulate = pointwise || dt > 0;
+                matmul(rows, ks, co, &mut dcols[off..], accumulate, &s.gy, (co, 1), &w[dt * ks * co..], (1, co), par);
             }
             if !pointwise {
                 col2im_add(g, &s.dcols, dxb);
