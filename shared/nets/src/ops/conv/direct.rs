@@ -34,16 +34,24 @@ pub(super) const MAX_WEIGHTS: usize = 8192;
 pub(super) const LANES: [usize; 3] = [8, 16, 32];
 
 /// Copy one sample's input (T, H, W, C_in) into `xp` (T, H + 2p_h, W + 2p_w, C_in)
-/// with zero borders.
+/// with zero borders. Every element of `xp[..padded_len]` is written (it may come
+/// from the scratch pool with stale contents): the border rows and the row ends
+/// with zeros, the rest with the input.
 pub(super) fn pad_frames(g: &Geometry, x: &[f32], xp: &mut [f32]) {
     let (hp, wp) = g.padded();
     let [ph, pw] = g.spec.padding;
     let ci = g.ci;
-    xp.fill(0.0);
+    let (row_len, edge) = (wp * ci, pw * ci);
     for (t, frame) in x.chunks_exact(g.h * g.w * ci).enumerate() {
-        for (h, row) in frame.chunks_exact(g.w * ci).enumerate() {
-            let dst = ((t * hp + h + ph) * wp + pw) * ci;
-            xp[dst..dst + g.w * ci].copy_from_slice(row);
+        let plane = &mut xp[t * hp * row_len..(t + 1) * hp * row_len];
+        let (top, rest) = plane.split_at_mut(ph * row_len);
+        let (body, bottom) = rest.split_at_mut(g.h * row_len);
+        top.fill(0.0);
+        bottom.fill(0.0);
+        for (dst, src) in body.chunks_exact_mut(row_len).zip(frame.chunks_exact(g.w * ci)) {
+            dst[..edge].fill(0.0);
+            dst[edge..edge + src.len()].copy_from_slice(src);
+            dst[edge + src.len()..].fill(0.0);
         }
     }
 }
