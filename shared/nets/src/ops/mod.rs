@@ -2,6 +2,41 @@
 //! kernel, a fully connected layer fast at one row, softplus, a fast
 //! frames-to-channels transpose, and a few numerically careful helpers.
 
+/// Define `fn $name<const …>(args)` that runs `$imp::<…, FMA>` compiled for AVX-512F
+/// with FMA or AVX2 with FMA when the CPU has them (checked at run time; `FMA =
+/// true`), and for the baseline otherwise (`FMA = false`: plain multiply and add,
+/// since a fused multiply-add without the instruction is a slow library call).
+macro_rules! multiversioned {
+    ($(#[$doc:meta])* fn $name:ident($($arg:ident: $ty:ty),* $(,)?) => $imp:ident) => {
+        multiversioned! { $(#[$doc])* fn $name<>($($arg: $ty),*) => $imp }
+    };
+    ($(#[$doc:meta])* fn $name:ident<$(const $g:ident: usize),*>($($arg:ident: $ty:ty),* $(,)?) => $imp:ident) => {
+        $(#[$doc])*
+        fn $name<$(const $g: usize),*>($($arg: $ty),*) {
+            #[cfg(target_arch = "x86_64")]
+            {
+                #[target_feature(enable = "avx512f,fma")]
+                fn v4<$(const $g: usize),*>($($arg: $ty),*) {
+                    $imp::<$($g,)* true>($($arg),*)
+                }
+                #[target_feature(enable = "avx2,fma")]
+                fn v3<$(const $g: usize),*>($($arg: $ty),*) {
+                    $imp::<$($g,)* true>($($arg),*)
+                }
+                if std::arch::is_x86_feature_detected!("avx512f") && std::arch::is_x86_feature_detected!("fma") {
+                    // Safety: the CPU supports every feature `v4` is compiled with.
+                    return unsafe { v4::<$($g),*>($($arg),*) };
+                }
+                if std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma") {
+                    // Safety: the CPU supports every feature `v3` is compiled with.
+                    return unsafe { v3::<$($g),*>($($arg),*) };
+                }
+            }
+            $imp::<$($g,)* false>($($arg),*)
+        }
+    };
+}
+
 pub mod conv;
 pub mod linear;
 

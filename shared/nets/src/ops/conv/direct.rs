@@ -295,7 +295,7 @@ mod avx512 {
 }
 
 // Portable kernels (CPUs without AVX-512, and C_out = 8): the same blocks in plain
-// Rust, compiled for AVX2 + FMA when the CPU has them.
+// Rust, compiled for AVX-512 or AVX2 + FMA when the CPU has them.
 
 /// `a·b + c`, fused when compiled with FMA.
 #[inline(always)]
@@ -378,29 +378,27 @@ fn portable_weight_grad_impl<const CO: usize, const P: usize, const FMA: bool>(
     });
 }
 
-/// Define `$name::<CO, P>`, which runs `$imp::<CO, P, FMA>` compiled for AVX2 + FMA
-/// when the CPU has them (checked at run time), and for the baseline otherwise.
-macro_rules! avx2_or_baseline {
-    ($name:ident($($arg:ident: $ty:ty),*) => $imp:ident) => {
-        fn $name<const CO: usize, const P: usize>($($arg: $ty),*) {
-            #[cfg(target_arch = "x86_64")]
-            {
-                #[target_feature(enable = "avx2,fma")]
-                fn v3<const CO: usize, const P: usize>($($arg: $ty),*) {
-                    $imp::<CO, P, true>($($arg),*)
-                }
-                if std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma") {
-                    // Safety: the CPU supports every feature `v3` is compiled with.
-                    return unsafe { v3::<CO, P>($($arg),*) };
-                }
-            }
-            $imp::<CO, P, false>($($arg),*)
-        }
-    };
+multiversioned! {
+    /// [`portable_forward_impl`] for the best instruction set of this CPU.
+    fn portable_forward_lanes<const CO: usize, const P: usize>(
+        g: &Geometry,
+        xp: &[f32],
+        w: &[f32],
+        bias: &[f32],
+        y: &mut [f32],
+        positions: Range<usize>,
+    ) => portable_forward_impl
 }
 
-avx2_or_baseline!(portable_forward_lanes(g: &Geometry, xp: &[f32], w: &[f32], bias: &[f32], y: &mut [f32], positions: Range<usize>) => portable_forward_impl);
-avx2_or_baseline!(portable_weight_grad_lanes(g: &Geometry, xp: &[f32], gy: &[f32], dw: &mut [f32]) => portable_weight_grad_impl);
+multiversioned! {
+    /// [`portable_weight_grad_impl`] for the best instruction set of this CPU.
+    fn portable_weight_grad_lanes<const CO: usize, const P: usize>(
+        g: &Geometry,
+        xp: &[f32],
+        gy: &[f32],
+        dw: &mut [f32],
+    ) => portable_weight_grad_impl
+}
 
 fn portable_forward(g: &Geometry, xp: &[f32], w: &[f32], bias: &[f32], y: &mut [f32], positions: Range<usize>) {
     match g.co {
