@@ -22,13 +22,15 @@
 //! worker thread, so memory stays bounded at large batches.
 //!
 //! Parallelism: samples are spread over rayon's pool with a single-threaded gemm
-//! each; with fewer samples than threads (actor inference) gemm itself runs in parallel.
+//! each; with fewer samples than threads (actor inference) gemm itself runs in
+//! parallel, or the direct kernel splits the sample's output positions.
 //!
-//! Narrow layers (C_out ≤ 32, weights ≤ 32 KiB: the 3D-TCN's first layer and the
-//! frame-stacking encoder's first two) skip im2col + gemm for the forward pass and
-//! dW: a direct kernel ([`direct`]), compiled for AVX-512
-//! or AVX2 + FMA and chosen at run time, accumulates each output position's C_out
-//! lanes in registers. Their input gradient still goes through gemm and col2im.
+//! Narrow layers (C_out ≤ 32 and weights ≤ 32 KiB: the 3D-TCN's first layer and the
+//! frame-stacking encoder's first two; at inference every C_out ≤ 32 layer) skip
+//! im2col + gemm for the forward pass and dW: a direct kernel ([`direct`]), compiled
+//! for AVX-512 or AVX2 + FMA and chosen at run time, accumulates each output
+//! position's C_out lanes in registers. Their input gradient still goes through
+//! gemm and col2im.
 
 use candle_core::{CpuStorage, CustomOp3, Layout, Shape, Storage, Tensor};
 use gemm::Parallelism;
@@ -165,15 +167,16 @@ impl Geometry {
         let (hp, wp) = self.padded();
         self.t * hp * wp * self.ci
     }
-    /// True when the direct kernel ([`direct`]) computes the forward pass and the
-    /// weight gradient: a lane-sized C_out ≤ 32, a spatial kernel, and weights that
-    /// stay in the L1 cache (per-layer measurements in `benches/conv_layers.rs`).
     /// With fewer samples than threads (actor inference) the direct kernel takes
     /// every layer with a lane-sized C_out ≤ 32, whatever its weights: there the
     /// column matrix is pure overhead (measured in the streaming policy step).
     fn direct_for_inference(&self) -> bool {
         direct::LANES.contains(&self.co) && !self.spatially_pointwise()
     }
+    /// True when the direct kernel ([`direct`]) computes the forward pass and the
+    /// weight gradient in training: a lane-sized C_out ≤ 32, a spatial kernel, and
+    /// weights that stay in the L1 cache (per-layer measurements in
+    /// `benches/conv_layers.rs`).
     fn direct(&self) -> bool {
         direct::LANES.contains(&self.co)
             && !self.spatially_pointwise()
