@@ -178,9 +178,19 @@ impl Geometry {
     /// weights that stay in the L1 cache (per-layer measurements in
     /// `benches/conv_layers.rs`).
     fn direct(&self) -> bool {
-        direct::LANES.contains(&self.co)
-            && !self.spatially_pointwise()
-            && self.spec.weight_rows(self.ci) * self.co <= direct::MAX_WEIGHTS
+        self.direct_for_inference() && self.spec.weight_rows(self.ci) * self.co <= direct::MAX_WEIGHTS
+    }
+    /// Floats of the per-sample input scratch: the padded input for the direct
+    /// kernel, the column matrix for gemm, nothing when the input is its own column
+    /// matrix.
+    fn input_scratch_len(&self, direct: bool) -> usize {
+        if direct {
+            self.padded_len()
+        } else if self.spatially_pointwise() {
+            0
+        } else {
+            self.cols_len()
+        }
     }
     /// True when the spatial im2col is the identity (1×1 kernel, stride 1, no padding):
     /// then the input itself is the column matrix, whatever the temporal kernel.
@@ -433,15 +443,7 @@ fn forward(g: &Geometry, x: &[f32], w: &[f32], bias: &[f32]) -> Vec<f32> {
         .zip(x.par_chunks(g.in_len().max(1)))
         .with_min_len(min_len(g.b))
         .for_each_init(
-            || {
-                Pooled::new(if direct {
-                    g.padded_len()
-                } else if pointwise {
-                    0
-                } else {
-                    g.cols_len()
-                })
-            },
+            || Pooled::new(g.input_scratch_len(direct)),
             |scratch, (y, xb)| {
                 if direct {
                     direct::pad_frames(g, xb, scratch);
@@ -504,13 +506,7 @@ fn backward(
     let new_scratch = || Scratch {
         dw: vec![0f32; kt * ks * co],
         db: vec![0f32; co],
-        cols: Pooled::new(if direct {
-            g.padded_len()
-        } else if pointwise {
-            0
-        } else {
-            g.cols_len()
-        }),
+        cols: Pooled::new(g.input_scratch_len(direct)),
         dcols: Pooled::new(if need_dx && !pointwise { g.cols_len() } else { 0 }),
         gy: Pooled::new(g.out_len()),
     };
