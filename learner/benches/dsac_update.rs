@@ -2,16 +2,25 @@
 //! and the CPU preset's network configurations, with and without replay sampling,
 //! and the actor's policy step (full recompute vs streaming cache).
 //!
-//! `cargo bench -p pednav-learner --bench dsac_update [-- --quick] [-- --only a,c]`
+//! `cargo bench -p pednav-learner --bench dsac_update [-- --quick] [-- --only a,c] [-- --json FILE]`
 //!
-//! Reference (PyTorch 2.x, same networks and update, 2 threads, this machine;
-//! DESIGN §7): (a) 1403 ms, (b) 146 ms, (c) 69 ms, (d) 39 ms; policy forward without
-//! gradients 2.5 ms for one observation, 22 ms for 16.
+//! The custom kernels run on the instruction set [`Isa::active`] picks (the best of
+//! this CPU, or `PEDNAV_ISA=baseline|avx2|avx512`); the bench prints which. With
+//! `--json FILE` it also writes every figure as
+//! `{"a": {"best_ms": …, "median_ms": …}, …, "act_full_1": {…}, "act_cache_1": {…},
+//! "act_full_16": {…}, "act_cache_16": {…}, "isa": "avx2", "cpu": …, "threads": …}`
+//! (keys a–d as in the table; act_* at N_h 16, 84²).
+//!
+//! Compare with the PyTorch reference of the same update in the same minute
+//! (`../shared/bench/torch_ref/bench.sh`): these machines are shared and differ, so
+//! only ratios measured together count (DESIGN §7). The `PyTorch ms` column below
+//! is the reference measured once on a 2-vCPU AVX-512 Xeon, for orientation only.
 
 use std::time::Instant;
 
 use candle_core::Device;
 use pednav_learner::{Dsac, DsacConfig, DualReplay, Frame, FrameKind, ReplayConfig, Step};
+use pednav_nets::ops::Isa;
 use pednav_nets::{EncoderKind, NetsConfig, PolicyStream, init_cpu_runtime};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -89,13 +98,36 @@ fn best(v: &[f64]) -> f64 {
     v.iter().copied().fold(f64::INFINITY, f64::min)
 }
 
+/// Best and median of one figure, as the JSON report holds it.
+fn figure(v: &[f64]) -> serde_json::Value {
+    serde_json::json!({ "best_ms": best(v), "median_ms": median(v.to_vec()) })
+}
+
+/// The CPU's model name, for the report.
+fn cpu_model() -> String {
+    std::fs::read_to_string("/proc/cpuinfo")
+        .ok()
+        .and_then(|s| {
+            s.lines()
+                .find_map(|l| l.strip_prefix("model name").map(|v| v.trim_start_matches([' ', '\t', ':']).to_string()))
+        })
+        .unwrap_or_else(|| "unknown".into())
+}
+
 fn main() {
     let args: Vec<String> = std::env::args().collect();
     let quick = args.iter().any(|a| a == "--quick");
-    let only: Option<Vec<String>> =
-        args.iter().position(|a| a == "--only").map(|i| args[i + 1].split(',').map(String::from).collect());
+    let value_of = |flag: &str| args.iter().position(|a| a == flag).and_then(|i| args.get(i + 1)).cloned();
+    let only: Option<Vec<String>> = value_of("--only").map(|v| v.split(',').map(String::from).collect());
+    let json_path = value_of("--json");
     let threads = init_cpu_runtime(None);
-    println!("threads: {threads}");
+    let isa = Isa::active();
+    let cpu = cpu_model();
+    println!("threads: {threads}, kernels: {isa} (set PEDNAV_ISA=baseline|avx2|avx512 to force one), CPU: {cpu}");
+    let mut report = serde_json::Map::new();
+    report.insert("isa".into(), isa.name().into());
+    report.insert("cpu".into(), cpu.clone().into());
+    report.insert("threads".into(), threads.into());
     println!(
         "| config | networks only ms/update: best (median) | sample + update ms (median) | sampling share | PyTorch ms | ratio best/PyTorch |"
     );
@@ -130,6 +162,7 @@ fn main() {
             sample_ms.push(s);
         }
         let nb = best(&net_ms);
+        report.insert(case.key.into(), figure(&net_ms));
         let (n, f, s) = (median(net_ms), median(full_ms), median(sample_ms));
         println!(
             "| ({}) {} | {nb:.0} ({n:.0}) | {f:.0} | {:.1} % | {:.0} | {:.2} |",
@@ -175,6 +208,10 @@ fn main() {
                 nets.policy.head(&f).unwrap();
                 full.push(t.elapsed().as_secs_f64() * 1e3);
             }
+            if (history, size) == (16, 84) {
+                report.insert(format!("act_full_{envs}"), figure(&full));
+                report.insert(format!("act_cache_{envs}"), figure(&cached));
+            }
             let (fb, cb) = (best(&full), best(&cached));
             let (fm, cm) = (median(full), median(cached));
             println!(
@@ -182,5 +219,10 @@ fn main() {
                 cb / fb
             );
         }
+    }
+    if let Some(path) = json_path {
+        let text = serde_json::to_string_pretty(&serde_json::Value::Object(report)).expect("figures serialise");
+        std::fs::write(&path, text + "\n").unwrap_or_else(|e| panic!("cannot write --json {path}: {e}"));
+        println!("figures written to {path}");
     }
 }

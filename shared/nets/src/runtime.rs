@@ -13,6 +13,10 @@
 //!   environment is only sound while no other thread can read it, so this is done
 //!   only when the process has a single thread (call this first thing in `main`).
 //!
+//! - kernels: the instruction-set path of the custom kernels ([`crate::ops::Isa`],
+//!   `PEDNAV_ISA`) is resolved here, so a bad value stops the process at start-up
+//!   with the message naming the variable rather than inside the first convolution.
+//!
 //! Invariant: [`init_cpu_runtime`] runs its body at most once per process.
 
 use std::sync::OnceLock;
@@ -34,6 +38,8 @@ pub fn init_cpu_runtime(threads: Option<usize>) -> usize {
         } else {
             tracing::debug!("init_cpu_runtime after other threads started: RAYON_NUM_THREADS left unset");
         }
+        let isa = crate::ops::Isa::active();
+        tracing::info!(isa = isa.name(), threads = n, "CPU kernels");
         // If something already built the global pool, keep it.
         let _ = rayon::ThreadPoolBuilder::new().num_threads(n).build_global();
         rayon::current_num_threads()

@@ -1,10 +1,19 @@
 //! The channel-last convolution kernel against independent values: central finite
-//! differences (exact for a linear op up to rounding) and candle's own `conv2d`.
+//! differences (exact for a linear op up to rounding) and candle's own `conv2d`, on
+//! every instruction-set path of this CPU (the binary re-runs itself per path).
 
 use candle_core::{Device, Tensor, Var};
 use pednav_nets::ops::{ConvSpec, conv, conv_reference};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
+
+mod common;
+
+/// Every test of this file also passes on the other instruction-set paths.
+#[test]
+fn every_test_here_passes_on_every_instruction_set() {
+    common::rerun_on_every_other_isa("every_test_here_passes_on_every_instruction_set");
+}
 
 fn random(rng: &mut ChaCha8Rng, shape: &[usize]) -> Tensor {
     let n: usize = shape.iter().product();
@@ -70,12 +79,24 @@ fn cases() -> Vec<Case> {
             c_out: 16,
             spec: s([2, 4, 4], [2, 2], [1, 1], 1),
         },
-        // Several input channels: direct kernel while the weights fit in L1, gemm beyond.
+        // Several input channels: direct kernels up to 64 KiB of weights, gemm beyond.
         Case {
-            name: "16ch k2x4x4 s2 p1 d2 C_out 32 (64 KiB of weights: gemm)",
+            name: "16ch k2x4x4 s2 p1 d2 C_out 32 (64 KiB of weights: direct)",
             input: [2, 5, 10, 12, 16],
             c_out: 32,
             spec: s([2, 4, 4], [2, 2], [1, 1], 2),
+        },
+        Case {
+            name: "32ch k2x3x3 s3 p0 C_out 64 (gemm forward and dW, direct input gradient)",
+            input: [2, 3, 7, 8, 32],
+            c_out: 64,
+            spec: s([2, 3, 3], [3, 3], [0, 0], 1),
+        },
+        Case {
+            name: "16ch 2d k3 s2 p1 (input gradient: direct on AVX2, gemm on AVX-512)",
+            input: [2, 1, 9, 9, 16],
+            c_out: 16,
+            spec: s([1, 3, 3], [2, 2], [1, 1], 1),
         },
         Case {
             name: "direct 3ch k2x3x3 s1 p1 odd",

@@ -9,6 +9,15 @@ use proptest::prelude::*;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
+mod common;
+
+/// Every test of this file (heads, encoders, the streaming cache, AdamW) also passes
+/// on the other instruction-set paths of the kernels.
+#[test]
+fn every_test_here_passes_on_every_instruction_set() {
+    common::rerun_on_every_other_isa("every_test_here_passes_on_every_instruction_set");
+}
+
 fn random(rng: &mut ChaCha8Rng, shape: &[usize], scale: f32) -> Tensor {
     let n: usize = shape.iter().product();
     let data: Vec<f32> = (0..n).map(|_| rng.random_range(-scale..scale)).collect();

@@ -25,16 +25,20 @@
 //! each; with fewer samples than threads (actor inference) gemm itself runs in
 //! parallel, or the direct kernel splits the sample's output positions.
 //!
-//! Narrow layers (C_out ≤ 32 and weights ≤ 32 KiB: the 3D-TCN's first layer and the
-//! frame-stacking encoder's first two; at inference every C_out ≤ 32 layer) skip
-//! im2col + gemm for the forward pass and dW: a direct kernel ([`direct`]), compiled
-//! for AVX-512 or AVX2 + FMA and chosen at run time, accumulates each output
-//! position's C_out lanes in registers. Their input gradient still goes through
-//! gemm and col2im.
+//! Narrow layers (C_out ≤ 32 and weights ≤ 64 KiB: the 3D-TCN's first two layers and
+//! the frame-stacking encoder's first two; at inference every C_out ≤ 32 layer) skip
+//! im2col + gemm for the forward pass and dW: a direct kernel ([`direct`]) for the
+//! instruction set of [`Isa::active`] accumulates register tiles of output positions
+//! × channels (forward) or taps × channels (dW). The input gradient of every layer
+//! whose rows of k_w·C_in inputs the vector tiles divide goes through a direct kernel
+//! too (gy·Wᵀ added straight into a padded input gradient); the rest, and the
+//! baseline instruction set, use gemm and col2im.
 
 use candle_core::{CpuStorage, CustomOp3, Layout, Shape, Storage, Tensor};
 use gemm::Parallelism;
 use rayon::prelude::*;
+
+use super::Isa;
 
 /// Geometry of one convolution layer (everything except the channel counts and the
 /// input size, which come from the tensors).
@@ -285,7 +289,8 @@ fn col2im_add(g: &Geometry, cols: &[f32], dx: &mut [f32]) {
 
 mod direct;
 
-/// `dst (m×n) = [dst +] lhs (m×k) · rhs (k×n)` with explicit strides (row, column).
+/// `dst (m×n) = [dst +] lhs (m×k) · rhs (k×n)` with explicit strides (row, column),
+/// on gemm's kernels for [`Isa::active`].
 #[allow(clippy::too_many_arguments)]
 pub(super) fn matmul(
     m: usize,
@@ -309,32 +314,102 @@ pub(super) fn matmul(
         }
         return;
     }
-    // Safety: the slices cover every element addressed by the strides (checked by
-    // the assertions), and `dst` does not alias the inputs (distinct borrows).
     assert!(lhs.len() > (m - 1) * lhs_strides.0 + (k - 1) * lhs_strides.1);
     assert!(rhs.len() > (k - 1) * rhs_strides.0 + (n - 1) * rhs_strides.1);
-    unsafe {
-        gemm::gemm(
-            m,
-            n,
-            k,
-            dst.as_mut_ptr(),
+    let op = GemmOp {
+        m,
+        n,
+        k,
+        dst: dst.as_mut_ptr(),
+        accumulate,
+        lhs: lhs.as_ptr(),
+        lhs_strides,
+        rhs: rhs.as_ptr(),
+        rhs_strides,
+        par,
+    };
+    // Safety: the slices cover every element addressed by the strides (asserted
+    // above), and `dst` does not alias the inputs (distinct borrows).
+    unsafe { op.run(Isa::active()) }
+}
+
+/// One gemm call with its operands (raw, checked by [`matmul`]).
+struct GemmOp {
+    m: usize,
+    n: usize,
+    k: usize,
+    dst: *mut f32,
+    accumulate: bool,
+    lhs: *const f32,
+    lhs_strides: (usize, usize),
+    rhs: *const f32,
+    rhs_strides: (usize, usize),
+    par: Parallelism,
+}
+
+/// Call gemm's generic driver with the microkernels of one instruction set. The
+/// `gemm` crate picks its kernels from the CPU alone; going through its public
+/// generic entry point (the one its own dispatch calls) lets `PEDNAV_ISA` force
+/// the AVX2 kernels on an AVX-512 CPU, so both paths can be measured on one machine.
+macro_rules! gemm_with {
+    ($op:expr, $simd:ty, $($uk:ident)::+, $lanes:expr) => {{
+        use $($uk)::+ as uk;
+        let op = $op;
+        let simd = <$simd as gemm_common::simd::MixedSimd<f32, f32, f32, f32>>::try_new()
+            .expect("the instruction set was checked before dispatch");
+        gemm_common::gemm::gemm_basic_generic::<
+            _,
+            f32,
+            { $lanes },
+            { uk::MR_DIV_N * $lanes },
+            { uk::NR },
+            { uk::MR_DIV_N },
+            { uk::H_M },
+            { uk::H_N },
+        >(
+            simd,
+            op.m,
+            op.n,
+            op.k,
+            op.dst,
             1,
-            n as isize,
-            accumulate,
-            lhs.as_ptr(),
-            lhs_strides.1 as isize,
-            lhs_strides.0 as isize,
-            rhs.as_ptr(),
-            rhs_strides.1 as isize,
-            rhs_strides.0 as isize,
+            op.n as isize,
+            op.accumulate,
+            op.lhs,
+            op.lhs_strides.1 as isize,
+            op.lhs_strides.0 as isize,
+            op.rhs,
+            op.rhs_strides.1 as isize,
+            op.rhs_strides.0 as isize,
             1.0,
             1.0,
             false,
             false,
             false,
-            par,
+            |a, b, c| a * b + c,
+            &uk::UKR,
+            &uk::H_UKR,
+            false,
+            op.par,
         )
+    }};
+}
+
+impl GemmOp {
+    /// Safety: the operands cover every element their strides address, `dst` aliases
+    /// neither input, and `isa` is supported by this CPU (asserted).
+    unsafe fn run(self, isa: Isa) {
+        assert!(isa.is_supported(), "instruction set {isa} is not available on this CPU");
+        // Safety: as documented on the function.
+        unsafe {
+            match isa {
+                #[cfg(target_arch = "x86_64")]
+                Isa::Avx512 => gemm_with!(self, gemm_common::simd::V4, gemm_f32::microkernel::avx512f::f32, 16),
+                #[cfg(target_arch = "x86_64")]
+                Isa::Avx2 => gemm_with!(self, gemm_common::simd::V3, gemm_f32::microkernel::fma::f32, 8),
+                _ => gemm_with!(self, gemm_common::simd::Scalar, gemm_f32::microkernel::scalar::f32, 1),
+            }
+        }
     }
 }
 
@@ -424,6 +499,7 @@ fn forward(g: &Geometry, x: &[f32], w: &[f32], bias: &[f32]) -> Vec<f32> {
     let par = inner_parallelism(g.b);
     let pointwise = g.spatially_pointwise();
     let direct = g.direct();
+    let isa = Isa::active();
     if g.direct_for_inference() && matches!(par, Parallelism::Rayon(_)) {
         // Fewer samples than threads (actor inference): split each sample's output
         // positions over the pool instead, in whole blocks.
@@ -434,7 +510,7 @@ fn forward(g: &Geometry, x: &[f32], w: &[f32], bias: &[f32]) -> Vec<f32> {
             direct::pad_frames(g, xb, &mut xp);
             y.par_chunks_mut(chunk * co).enumerate().for_each(|(i, yc)| {
                 let q0 = i * chunk;
-                direct::forward(g, &xp, w, bias, yc, q0..q0 + yc.len() / co)
+                direct::forward(g, isa, &xp, w, bias, yc, q0..q0 + yc.len() / co)
             });
         }
         return out;
@@ -447,7 +523,7 @@ fn forward(g: &Geometry, x: &[f32], w: &[f32], bias: &[f32]) -> Vec<f32> {
             |scratch, (y, xb)| {
                 if direct {
                     direct::pad_frames(g, xb, scratch);
-                    direct::forward(g, scratch, w, bias, y, 0..g.to * g.ps());
+                    direct::forward(g, isa, scratch, w, bias, y, 0..g.to * g.ps());
                     return;
                 }
                 let lhs: &[f32] = if pointwise {
@@ -489,9 +565,21 @@ fn backward(
     let kt = g.spec.kernel[0];
     let par = inner_parallelism(g.b);
     let pointwise = g.spatially_pointwise();
-    // The direct kernel computes dW; an input gradient always takes the gemm path
-    // (gy · Wᵀ into the column matrix, then col2im), which needs no im2col.
+    // The direct kernel computes dW for narrow layers, gemm over im2col the rest.
     let direct = g.direct();
+    let isa = Isa::active();
+    // The input gradient: the direct kernel adds each position's gy·Wᵀ straight
+    // into a padded input gradient where the instruction set has one; otherwise
+    // gemm writes the column matrix and col2im scatters it.
+    let direct_dx = need_dx && direct::input_grad_supported(g, isa);
+    let wt = if direct_dx { direct::transpose_weights(g, w) } else { Vec::new() };
+    let dx_scratch_len = if direct_dx {
+        g.padded_len()
+    } else if need_dx && !pointwise {
+        g.cols_len()
+    } else {
+        0
+    };
     let mut dx = if need_dx { vec![0f32; g.b * g.in_len()] } else { Vec::new() };
     let in_len = g.in_len().max(1);
     let out_len = g.out_len().max(1);
@@ -507,10 +595,10 @@ fn backward(
         dw: vec![0f32; kt * ks * co],
         db: vec![0f32; co],
         cols: Pooled::new(g.input_scratch_len(direct)),
-        dcols: Pooled::new(if need_dx && !pointwise { g.cols_len() } else { 0 }),
+        dcols: Pooled::new(dx_scratch_len),
         gy: Pooled::new(g.out_len()),
     };
-    let per_sample = |mut s: Scratch, xb: &[f32], yb: &[f32], dyb: &[f32], dxb: Option<&mut [f32]>| {
+    let per_sample = |mut s: Scratch, xb: &[f32], yb: &[f32], dyb: &[f32], mut dxb: Option<&mut [f32]>| {
         // Gradient at the pre-activation: the ReLU mask comes from the saved output.
         for ((gv, &yv), &dv) in s.gy.iter_mut().zip(yb).zip(dyb) {
             *gv = if g.spec.relu && yv <= 0.0 { 0.0 } else { dv };
@@ -522,7 +610,7 @@ fn backward(
         }
         if direct {
             direct::pad_frames(g, xb, &mut s.cols);
-            direct::weight_grad(g, &s.cols, &s.gy, &mut s.dw);
+            direct::weight_grad(g, isa, &s.cols, &s.gy, &mut s.dw);
         } else {
             let lhs: &[f32] = if pointwise {
                 xb
@@ -536,7 +624,11 @@ fn backward(
                 matmul(ks, co, rows, &mut s.dw[dt * ks * co..], true, tap, (1, ks), &s.gy, (co, 1), par);
             }
         }
-        if let Some(dxb) = dxb {
+        if let (Some(dxb), true) = (dxb.as_deref_mut(), direct_dx) {
+            s.dcols.fill(0.0);
+            direct::input_grad(g, isa, &wt, &s.gy, &mut s.dcols);
+            direct::unpad_frames(g, &s.dcols, dxb);
+        } else if let Some(dxb) = dxb {
             // dtap (rows×ks) += gy (rows×co) · W_dtᵀ (co×ks), into the column matrix
             // (or straight into dx when im2col is the identity).
             let dcols: &mut [f32] = if pointwise { dxb } else { &mut s.dcols };

@@ -78,7 +78,7 @@ impl CustomOp3 for LinearOp {
         let (x, w, b) = (cpu_f32(s1, l1, "input")?, cpu_f32(s2, l2, "weight")?, cpu_f32(s3, l3, "bias")?);
         let mut y = vec![0f32; m * n];
         if m <= GEMV_ROWS {
-            small_batch(m, k, n, x, w, b, &mut y);
+            small_batch(super::Isa::active(), m, k, n, x, w, b, &mut y);
         } else {
             let threads = rayon::current_num_threads();
             let par = if threads > 1 { Parallelism::Rayon(threads) } else { Parallelism::None };

@@ -2,20 +2,24 @@
 //! kernel, a fully connected layer fast at one row, softplus, a fast
 //! frames-to-channels transpose, and a few numerically careful helpers.
 
-/// Define `fn $name<const …>(args)` that runs `$imp::<…, FMA>` compiled for AVX-512F
-/// with FMA or AVX2 with FMA when the CPU has them (checked at run time; `FMA =
-/// true`), and for the baseline otherwise (`FMA = false`: plain multiply and add,
-/// since a fused multiply-add without the instruction is a slow library call).
+/// Define `fn $name<const …>(isa: Isa, args)` that runs `$imp::<…, FMA>` compiled
+/// for AVX-512F with FMA, AVX2 with FMA (`FMA = true`) or the baseline (`FMA =
+/// false`: plain multiply and add, since a fused multiply-add without the
+/// instruction is a slow library call), as `isa` says. `$imp` must be plain loops
+/// (`#[inline(always)]`, no closures around the arithmetic): a closure is compiled
+/// without the wrapper's target features (DESIGN §7).
 macro_rules! multiversioned {
     ($(#[$doc:meta])* fn $name:ident($($arg:ident: $ty:ty),* $(,)?) => $imp:ident) => {
         multiversioned! { $(#[$doc])* fn $name<>($($arg: $ty),*) => $imp }
     };
     ($(#[$doc:meta])* fn $name:ident<$(const $g:ident: usize),*>($($arg:ident: $ty:ty),* $(,)?) => $imp:ident) => {
         $(#[$doc])*
-        fn $name<$(const $g: usize),*>($($arg: $ty),*) {
+        #[allow(clippy::too_many_arguments)]
+        fn $name<$(const $g: usize),*>(isa: $crate::ops::Isa, $($arg: $ty),*) {
+            assert!(isa.is_supported(), "instruction set {isa} is not available on this CPU");
             #[cfg(target_arch = "x86_64")]
             {
-                #[target_feature(enable = "avx512f,fma")]
+                #[target_feature(enable = "avx512f,avx2,fma")]
                 fn v4<$(const $g: usize),*>($($arg: $ty),*) {
                     $imp::<$($g,)* true>($($arg),*)
                 }
@@ -23,13 +27,12 @@ macro_rules! multiversioned {
                 fn v3<$(const $g: usize),*>($($arg: $ty),*) {
                     $imp::<$($g,)* true>($($arg),*)
                 }
-                if std::arch::is_x86_feature_detected!("avx512f") && std::arch::is_x86_feature_detected!("fma") {
-                    // Safety: the CPU supports every feature `v4` is compiled with.
-                    return unsafe { v4::<$($g),*>($($arg),*) };
-                }
-                if std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma") {
-                    // Safety: the CPU supports every feature `v3` is compiled with.
-                    return unsafe { v3::<$($g),*>($($arg),*) };
+                match isa {
+                    // Safety: the CPU supports the instruction set (asserted above).
+                    $crate::ops::Isa::Avx512 => return unsafe { v4::<$($g),*>($($arg),*) },
+                    // Safety: as above.
+                    $crate::ops::Isa::Avx2 => return unsafe { v3::<$($g),*>($($arg),*) },
+                    $crate::ops::Isa::Baseline => {}
                 }
             }
             $imp::<$($g,)* false>($($arg),*)
@@ -38,12 +41,15 @@ macro_rules! multiversioned {
 }
 
 pub mod conv;
+pub mod isa;
 pub mod linear;
+mod simd;
 
 use candle_core::{Result, Tensor};
 use rayon::prelude::*;
 
 pub use conv::{ConvSpec, conv, conv_reference};
+pub use isa::Isa;
 pub use linear::linear;
 
 /// softplus(x) = log(1 + eˣ), computed as max(x, 0) + log(1 + e^{−|x|}) so it
