@@ -2,7 +2,8 @@
 //! and the CPU preset's network configurations, with and without replay sampling,
 //! and the actor's policy step (full recompute vs streaming cache).
 //!
-//! `cargo bench -p pednav-learner --bench dsac_update [-- --quick] [-- --only a,c] [-- --json FILE]`
+//! `cargo bench -p pednav-learner --bench dsac_update [-- --quick] [-- --only a,c,act] [-- --json FILE]`
+//! (`--only` takes the update keys a–d and `act` for the actor's policy step)
 //!
 //! The custom kernels run on the instruction set [`Isa::active`] picks (the best of
 //! this CPU, or `PEDNAV_ISA=baseline|avx2|avx512`); the bench prints which. With
@@ -13,8 +14,11 @@
 //!
 //! Compare with the PyTorch reference of the same update in the same minute
 //! (`../shared/bench/torch_ref/bench.sh`): these machines are shared and differ, so
-//! only ratios measured together count (DESIGN §7). The `PyTorch ms` column below
-//! is the reference measured once on a 2-vCPU AVX-512 Xeon, for orientation only.
+//! only ratios measured together count (DESIGN §7). `--pytorch FILE[,FILE…]` reads
+//! that script's stdout (the fastest figure per config over the files) and the ratio
+//! columns and the JSON (`"pytorch"`, `"ratio"`) use it; without it the `PyTorch ms`
+//! column is the reference measured once on a 2-vCPU AVX-512 Xeon, for orientation
+//! only. `deploy/bench_learner.sh` runs both side by side on every path of the CPU.
 
 use std::time::Instant;
 
@@ -114,12 +118,39 @@ fn cpu_model() -> String {
         .unwrap_or_else(|| "unknown".into())
 }
 
+/// PyTorch's ms per config key (a–d, act_full_1, act_full_16) from the stdout of
+/// `torch_ref/bench.sh` (`NAME ms` lines), the fastest over `paths`.
+fn read_pytorch(paths: &str) -> std::collections::BTreeMap<String, f64> {
+    let mut figures = std::collections::BTreeMap::new();
+    for path in paths.split(',').filter(|p| !p.is_empty()) {
+        let text = std::fs::read_to_string(path).unwrap_or_else(|e| panic!("cannot read --pytorch {path}: {e}"));
+        for line in text.lines() {
+            let mut parts = line.split_whitespace();
+            let (Some(name), Some(ms), None) = (parts.next(), parts.next(), parts.next()) else { continue };
+            let Ok(ms) = ms.parse::<f64>() else { continue };
+            let key = match name {
+                n if n.starts_with("A_") => "a",
+                n if n.starts_with("B_") => "b",
+                n if n.starts_with("C_") => "c",
+                n if n.starts_with("D_") => "d",
+                n if n.starts_with("act_nograd_b1_") => "act_full_1",
+                n if n.starts_with("act_nograd_b16_") => "act_full_16",
+                _ => continue,
+            };
+            let best = figures.entry(key.to_string()).or_insert(f64::INFINITY);
+            *best = f64::min(*best, ms);
+        }
+    }
+    figures
+}
+
 fn main() {
     let args: Vec<String> = std::env::args().collect();
     let quick = args.iter().any(|a| a == "--quick");
     let value_of = |flag: &str| args.iter().position(|a| a == flag).and_then(|i| args.get(i + 1)).cloned();
     let only: Option<Vec<String>> = value_of("--only").map(|v| v.split(',').map(String::from).collect());
     let json_path = value_of("--json");
+    let pytorch = value_of("--pytorch").map(|p| read_pytorch(&p)).unwrap_or_default();
     let threads = init_cpu_runtime(None);
     let isa = Isa::active();
     let cpu = cpu_model();
@@ -163,17 +194,22 @@ fn main() {
         }
         let nb = best(&net_ms);
         report.insert(case.key.into(), figure(&net_ms));
+        let pytorch_ms = pytorch.get(case.key).copied().unwrap_or(case.pytorch_ms);
         let (n, f, s) = (median(net_ms), median(full_ms), median(sample_ms));
         println!(
             "| ({}) {} | {nb:.0} ({n:.0}) | {f:.0} | {:.1} % | {:.0} | {:.2} |",
             case.key,
             case.what,
             100.0 * s / f,
-            case.pytorch_ms,
-            nb / case.pytorch_ms
+            pytorch_ms,
+            nb / pytorch_ms
         );
     }
 
+    if only.as_ref().is_some_and(|o| !o.iter().any(|k| k == "act")) {
+        write_report(json_path, report, &pytorch);
+        return;
+    }
     println!();
     println!(
         "| actor policy step (no gradients) | envs | full recompute ms: best (median) | streaming cache ms: best (median) | cache/full (best) |"
@@ -211,6 +247,9 @@ fn main() {
             if (history, size) == (16, 84) {
                 report.insert(format!("act_full_{envs}"), figure(&full));
                 report.insert(format!("act_cache_{envs}"), figure(&cached));
+                if let Some(p) = pytorch.get(&format!("act_full_{envs}")) {
+                    println!("|   PyTorch act_nograd, {envs} obs: {p:.2} ms; full recompute / PyTorch {:.2} |", best(&full) / p);
+                }
             }
             let (fb, cb) = (best(&full), best(&cached));
             let (fm, cm) = (median(full), median(cached));
@@ -220,7 +259,25 @@ fn main() {
             );
         }
     }
-    if let Some(path) = json_path {
+    write_report(json_path, report, &pytorch);
+}
+
+/// Write the figures as JSON when `--json FILE` was given, with PyTorch's figures
+/// and ours/PyTorch (best over best) where `--pytorch` gave them.
+fn write_report(
+    path: Option<String>,
+    mut report: serde_json::Map<String, serde_json::Value>,
+    pytorch: &std::collections::BTreeMap<String, f64>,
+) {
+    if !pytorch.is_empty() {
+        let ratios: serde_json::Map<String, serde_json::Value> = pytorch
+            .iter()
+            .filter_map(|(k, p)| Some((k.clone(), (report.get(k)?.get("best_ms")?.as_f64()? / p).into())))
+            .collect();
+        report.insert("pytorch".into(), serde_json::json!(pytorch));
+        report.insert("ratio".into(), ratios.into());
+    }
+    if let Some(path) = path {
         let text = serde_json::to_string_pretty(&serde_json::Value::Object(report)).expect("figures serialise");
         std::fs::write(&path, text + "\n").unwrap_or_else(|e| panic!("cannot write --json {path}: {e}"));
         println!("figures written to {path}");
