@@ -248,7 +248,10 @@ fn main() {
                 report.insert(format!("act_full_{envs}"), figure(&full));
                 report.insert(format!("act_cache_{envs}"), figure(&cached));
                 if let Some(p) = pytorch.get(&format!("act_full_{envs}")) {
-                    println!("|   PyTorch act_nograd, {envs} obs: {p:.2} ms; full recompute / PyTorch {:.2} |", best(&full) / p);
+                    println!(
+                        "|   PyTorch act_nograd, {envs} obs: {p:.2} ms; full recompute / PyTorch {:.2} |",
+                        best(&full) / p
+                    );
                 }
             }
             let (fb, cb) = (best(&full), best(&cached));

@@ -79,7 +79,7 @@ fn cases() -> Vec<Case> {
             c_out: 16,
             spec: s([2, 4, 4], [2, 2], [1, 1], 1),
         },
-        // Several input channels: direct kernels up to 64 KiB of weights, gemm beyond.
+        // Several input channels.
         Case {
             name: "16ch k2x4x4 s2 p1 d2 C_out 32 (64 KiB of weights: direct)",
             input: [2, 5, 10, 12, 16],
@@ -87,7 +87,7 @@ fn cases() -> Vec<Case> {
             spec: s([2, 4, 4], [2, 2], [1, 1], 2),
         },
         Case {
-            name: "32ch k2x3x3 s3 p0 C_out 64 (gemm forward and dW, direct input gradient)",
+            name: "direct 32ch k2x3x3 s3 p0 C_out 64 (channel groups; direct input gradient)",
             input: [2, 3, 7, 8, 32],
             c_out: 64,
             spec: s([2, 3, 3], [3, 3], [0, 0], 1),
@@ -97,6 +97,18 @@ fn cases() -> Vec<Case> {
             input: [2, 1, 9, 9, 16],
             c_out: 16,
             spec: s([1, 3, 3], [2, 2], [1, 1], 1),
+        },
+        Case {
+            name: "direct temporal k3 d2 over 3x3, 8ch C_out 16 (pointwise)",
+            input: [2, 7, 3, 3, 8],
+            c_out: 16,
+            spec: s([3, 1, 1], [1, 1], [0, 0], 2),
+        },
+        Case {
+            name: "12ch 2d k3 s1 p1 C_out 24 (gemm: no direct kernel for 24)",
+            input: [2, 1, 6, 7, 12],
+            c_out: 24,
+            spec: s([1, 3, 3], [1, 1], [1, 1], 1),
         },
         Case {
             name: "direct 3ch k2x3x3 s1 p1 odd",

@@ -25,8 +25,7 @@
 //! each; with fewer samples than threads (actor inference) gemm itself runs in
 //! parallel, or the direct kernel splits the sample's output positions.
 //!
-//! Narrow layers (C_out ≤ 32 and weights ≤ 64 KiB: the 3D-TCN's first two layers and
-//! the frame-stacking encoder's first two; at inference every C_out ≤ 32 layer) skip
+//! Layers with C_out ∈ {8, 16, 32, 64} (every convolution of the encoders) skip
 //! im2col + gemm for the forward pass and dW: a direct kernel ([`direct`]) for the
 //! instruction set of [`Isa::active`] accumulates register tiles of output positions
 //! × channels (forward) or taps × channels (dW). The input gradient of every layer
@@ -171,18 +170,13 @@ impl Geometry {
         let (hp, wp) = self.padded();
         self.t * hp * wp * self.ci
     }
-    /// With fewer samples than threads (actor inference) the direct kernel takes
-    /// every layer with a lane-sized C_out ≤ 32, whatever its weights: there the
-    /// column matrix is pure overhead (measured in the streaming policy step).
-    fn direct_for_inference(&self) -> bool {
-        direct::LANES.contains(&self.co) && !self.spatially_pointwise()
-    }
-    /// True when the direct kernel ([`direct`]) computes the forward pass and the
-    /// weight gradient in training: a lane-sized C_out ≤ 32, a spatial kernel, and
-    /// weights that stay in the L1 cache (per-layer measurements in
-    /// `benches/conv_layers.rs`).
+    /// True when the direct kernels ([`direct`]) compute the forward pass and the
+    /// weight gradient: C_out a multiple of the vector tiles (8, 16, 32 or 64 — every
+    /// convolution of the encoders). Per-layer measurements in `benches/conv_layers.rs`:
+    /// on the AVX-512 and AVX2 paths the direct kernels ran every image layer at
+    /// least as fast as im2col + gemm (C_in = 1 layers 2–5× faster).
     fn direct(&self) -> bool {
-        self.direct_for_inference() && self.spec.weight_rows(self.ci) * self.co <= direct::MAX_WEIGHTS
+        direct::LANES.contains(&self.co)
     }
     /// Floats of the per-sample input scratch: the padded input for the direct
     /// kernel, the column matrix for gemm, nothing when the input is its own column
@@ -500,7 +494,7 @@ fn forward(g: &Geometry, x: &[f32], w: &[f32], bias: &[f32]) -> Vec<f32> {
     let pointwise = g.spatially_pointwise();
     let direct = g.direct();
     let isa = Isa::active();
-    if g.direct_for_inference() && matches!(par, Parallelism::Rayon(_)) {
+    if direct && matches!(par, Parallelism::Rayon(_)) {
         // Fewer samples than threads (actor inference): split each sample's output
         // positions over the pool instead, in whole blocks.
         let mut xp = Pooled::new(g.padded_len());

@@ -8,8 +8,7 @@
 //! three register-tiled kernels, each written once over [`crate::ops::simd::Simd`]
 //! and compiled for AVX2 (8 lanes) and AVX-512 (16 lanes), do the work:
 //! - forward: P output positions × R vectors of channels, each position an
-//!   independent chain of fused multiply-adds sharing every weight load (C_out ≤ 32,
-//!   weights ≤ [`MAX_WEIGHTS`]);
+//!   independent chain of fused multiply-adds sharing every weight load;
 //! - weight gradient: T taps × R vectors of dW stay in registers while they sum over
 //!   a chunk of positions;
 //! - input gradient: P positions × a run-aligned tile of taps, Σ over the output
@@ -32,15 +31,9 @@ use std::ops::Range;
 use super::Geometry;
 use crate::ops::Isa;
 
-/// Largest weight matrix (floats) the direct kernel takes in training: 64 KiB (the
-/// second 3D-TCN layer). Measured on a 2-core AMD EPYC (Zen 4), `conv_layers` bench:
-/// that layer's forward at B 64, 84² took 60 ms (200 GFLOP/s) on the AVX2 tiles and
-/// 58 ms on the AVX-512 ones, against 126 ms for im2col + gemm. Beyond it (C_out 64)
-/// gemm stays.
-pub(super) const MAX_WEIGHTS: usize = 16384;
-
-/// C_out values with a direct kernel (vector lanes: 8 for AVX2, 16 and 32 for AVX-512).
-pub(super) const LANES: [usize; 3] = [8, 16, 32];
+/// C_out values with a direct kernel: whole register tiles on AVX2 (8 lanes) and
+/// AVX-512 (16); wider channels go in groups of tiles.
+pub(super) const LANES: [usize; 4] = [8, 16, 32, 64];
 
 /// Copy one sample's input (T, H, W, C_in) into `xp` (T, H + 2p_h, W + 2p_w, C_in)
 /// with zero borders. Every element of `xp[..padded_len]` is written (it may come
@@ -101,7 +94,8 @@ pub(super) fn forward(
                 (Isa::Avx512, 32) => return vector::forward_avx512::<2, 4>(g, xp, w, bias, y, positions),
                 (Isa::Avx2 | Isa::Avx512, 8) => return vector::forward_avx2::<1, 8>(g, xp, w, bias, y, positions),
                 (Isa::Avx2, 16) => return vector::forward_avx2::<2, 6>(g, xp, w, bias, y, positions),
-                (Isa::Avx2, 32) => return vector::forward_avx2::<2, 6>(g, xp, w, bias, y, positions),
+                (Isa::Avx2, 32 | 64) => return vector::forward_avx2::<2, 6>(g, xp, w, bias, y, positions),
+                (Isa::Avx512, 64) => return vector::forward_avx512::<4, 6>(g, xp, w, bias, y, positions),
                 _ => {}
             }
         }
@@ -126,7 +120,8 @@ pub(super) fn weight_grad(g: &Geometry, isa: Isa, xp: &[f32], gy: &[f32], dw: &m
                 (Isa::Avx512, 32) => return vector::weight_grad_avx512::<2, 12>(g, xp, gy, dw),
                 (Isa::Avx2 | Isa::Avx512, 8) => return vector::weight_grad_avx2::<1, 12>(g, xp, gy, dw),
                 (Isa::Avx2, 16) => return vector::weight_grad_avx2::<2, 6>(g, xp, gy, dw),
-                (Isa::Avx2, 32) => return vector::weight_grad_avx2::<2, 6>(g, xp, gy, dw),
+                (Isa::Avx2, 32 | 64) => return vector::weight_grad_avx2::<2, 6>(g, xp, gy, dw),
+                (Isa::Avx512, 64) => return vector::weight_grad_avx512::<4, 6>(g, xp, gy, dw),
                 _ => {}
             }
         }
@@ -630,6 +625,7 @@ fn portable_forward(g: &Geometry, xp: &[f32], w: &[f32], bias: &[f32], y: &mut [
         8 => portable_forward_lanes::<8, 8>(g, xp, w, bias, y, positions),
         16 => portable_forward_lanes::<16, 4>(g, xp, w, bias, y, positions),
         32 => portable_forward_lanes::<32, 2>(g, xp, w, bias, y, positions),
+        64 => portable_forward_lanes::<64, 1>(g, xp, w, bias, y, positions),
         co => unreachable!("no direct kernel for C_out {co}"),
     }
 }
@@ -639,6 +635,7 @@ fn portable_weight_grad(g: &Geometry, xp: &[f32], gy: &[f32], dw: &mut [f32]) {
         8 => portable_weight_grad_lanes::<8, 8>(g, xp, gy, dw),
         16 => portable_weight_grad_lanes::<16, 4>(g, xp, gy, dw),
         32 => portable_weight_grad_lanes::<32, 2>(g, xp, gy, dw),
+        64 => portable_weight_grad_lanes::<64, 1>(g, xp, gy, dw),
         co => unreachable!("no direct kernel for C_out {co}"),
     }
 }
@@ -664,6 +661,8 @@ mod tests {
             (32, 16, ConvSpec::spatiotemporal(2, 2, 4, 2, 1), (4, 10, 13)),
             (16, 5, ConvSpec::spatial(4, 2, 2), (1, 9, 10)),
             (8, 2, ConvSpec::spatiotemporal(3, 1, 3, 3, 0), (4, 9, 12)),
+            (64, 32, ConvSpec::spatiotemporal(2, 4, 3, 3, 0), (6, 10, 10)),
+            (16, 8, ConvSpec::temporal(3, 2), (7, 3, 3)),
         ] {
             for relu in [false, true] {
                 let spec = ConvSpec { relu, ..spec };
