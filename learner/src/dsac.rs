@@ -174,7 +174,8 @@ impl Dsac {
 
         // Encoders: o_t (with gradients) and o_{t+1} (for the TD target) in one pass
         // over each transition's frames where the encoder allows it.
-        let features = nets.transition_features(&batch.obs, &batch.next_obs, batch.window.as_ref())?;
+        let (obs, next_obs) = (nets.prepare(&batch.obs)?, nets.prepare(&batch.next_obs)?);
+        let features = nets.transition_features(&obs, &next_obs, batch.window.as_ref())?;
         let (next_policy_features, next_fraction_features) = (features.next_policy, features.next_fraction);
 
         // TD target (no gradients).
@@ -183,8 +184,7 @@ impl Dsac {
         let (a_next, logp_next) = (next.action.detach(), next.log_prob.detach());
         let next_fr = nets.fraction.fractions(&next_fraction_features.detach(), &a_next)?;
         let (next_hats, next_widths) = (next_fr.hats.detach(), next_fr.widths.detach());
-        let z_next =
-            nets.target.grid(&nets.target_features(&batch.next_obs)?.detach(), &a_next)?.at(&next_hats)?.detach();
+        let z_next = nets.target.grid(&nets.target_features(&next_obs)?.detach(), &a_next)?.at(&next_hats)?.detach();
         let soft = z_next.broadcast_sub(&(logp_next * alpha)?.unsqueeze(1)?)?;
         let not_done = (batch.done.neg()? + 1.0)?;
         let target = soft

@@ -129,6 +129,16 @@ impl DsacNets {
         Ok(TransitionFeatures { online: OnlineFeatures { policy, fraction, quantile }, next_policy, next_fraction })
     }
 
+    /// The batch as the encoders read it best when several of them see it: frame
+    /// stacking transposes the frames once here ([`Obs::stacked`]) instead of once per
+    /// encoder; other encoders get the batch as it is.
+    pub fn prepare(&self, obs: &Obs) -> Result<Obs> {
+        match self.cfg.encoder {
+            crate::config::EncoderKind::FrameStack => obs.stacked(),
+            _ => Ok(obs.clone()),
+        }
+    }
+
     /// Features of the target quantile net.
     pub fn target_features(&self, obs: &Obs) -> Result<Tensor> {
         features_of(&self.target.encoder, obs, None)

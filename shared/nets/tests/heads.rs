@@ -174,6 +174,25 @@ fn networks_are_reproducible_from_the_seed_and_the_target_starts_equal() {
     }
 }
 
+/// `DsacNets::prepare` (frame stacking: frames transposed once for every encoder)
+/// changes no feature, for any encoder kind.
+#[test]
+fn prepared_observations_give_the_same_features() {
+    let mut rng = ChaCha8Rng::seed_from_u64(12);
+    for kind in [EncoderKind::FrameStack, EncoderKind::Tcn] {
+        let cfg = tiny(kind, false);
+        let nets = DsacNets::new(&cfg, &Device::Cpu, 2).unwrap();
+        let obs = pixel_obs(&mut rng, &cfg, 3);
+        let prepared = nets.prepare(&obs).unwrap();
+        assert_eq!(matches!(prepared, Obs::Stacked(_)), kind == EncoderKind::FrameStack);
+        let (a, b) = (nets.online_features(&obs).unwrap(), nets.online_features(&prepared).unwrap());
+        for (x, y) in [(&a.policy, &b.policy), (&a.fraction, &b.fraction), (&a.quantile, &b.quantile)] {
+            assert_eq!(rows(x), rows(y), "{kind:?}");
+        }
+        assert_eq!(rows(&nets.target_features(&obs).unwrap()), rows(&nets.target_features(&prepared).unwrap()));
+    }
+}
+
 #[test]
 fn every_encoder_kind_runs_forward_and_backward() {
     let mut rng = ChaCha8Rng::seed_from_u64(3);
@@ -401,9 +420,12 @@ fn transition_features_equal_separate_encoding() {
 #[test]
 fn frames_to_channels_last_equals_the_permute() {
     let mut rng = ChaCha8Rng::seed_from_u64(4);
-    let frames = random(&mut rng, &[3, 5, 7, 6], 1.0);
-    let fast = pednav_nets::ops::frames_to_channels_last(&frames).unwrap();
-    let reference = frames.permute((0, 2, 3, 1)).unwrap().reshape((3, 1, 7, 6, 5)).unwrap();
-    assert_eq!(fast.dims(), reference.dims());
-    assert_eq!(rows(&fast.flatten_from(1).unwrap()), rows(&reference.flatten_from(1).unwrap()));
+    // Frames smaller than one transpose block, and several blocks with a partial last one.
+    for (b, t, h, w) in [(3, 5, 7, 6), (2, 16, 13, 11)] {
+        let frames = random(&mut rng, &[b, t, h, w], 1.0);
+        let fast = pednav_nets::ops::frames_to_channels_last(&frames).unwrap();
+        let reference = frames.permute((0, 2, 3, 1)).unwrap().reshape((b, 1, h, w, t)).unwrap();
+        assert_eq!(fast.dims(), reference.dims());
+        assert_eq!(rows(&fast.flatten_from(1).unwrap()), rows(&reference.flatten_from(1).unwrap()));
+    }
 }

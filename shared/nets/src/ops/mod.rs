@@ -52,6 +52,26 @@ pub use conv::{ConvSpec, conv, conv_reference};
 pub use isa::Isa;
 pub use linear::linear;
 
+/// out (p × t) = sample (t × p)ᵀ, in blocks of [`TRANSPOSE_BLOCK`] columns: each
+/// block's output (block × t floats, contiguous) stays in the L1 cache while the t
+/// rows are read in contiguous runs (a column at a time went to memory at every
+/// store: 11 % of a frame-stacking update).
+fn transpose_block_rows(sample: &[f32], out: &mut [f32], t: usize, p: usize) {
+    let (sample, out) = (&sample[..t * p], &mut out[..t * p]);
+    for (bi, block) in out.chunks_mut(TRANSPOSE_BLOCK * t).enumerate() {
+        let px0 = bi * TRANSPOSE_BLOCK;
+        let n = block.len() / t;
+        for (ti, row) in sample.chunks_exact(p).enumerate() {
+            for (k, &v) in row[px0..px0 + n].iter().enumerate() {
+                block[k * t + ti] = v;
+            }
+        }
+    }
+}
+
+/// Columns per block of [`transpose_block_rows`].
+const TRANSPOSE_BLOCK: usize = 64;
+
 /// softplus(x) = log(1 + eˣ), computed as max(x, 0) + log(1 + e^{−|x|}) so it
 /// neither overflows for large x nor loses precision for very negative x.
 pub fn softplus(x: &Tensor) -> Result<Tensor> {
@@ -82,13 +102,9 @@ pub fn frames_to_channels_last(frames: &Tensor) -> Result<Tensor> {
     let p = h * w;
     let mut dst = vec![0f32; b * t * p];
     conv::with_cpu_f32(&frames.contiguous()?, "frames", |src| {
-        dst.par_chunks_mut((t * p).max(1)).zip(src.par_chunks((t * p).max(1))).for_each(|(out, sample)| {
-            for (px, o) in out.chunks_exact_mut(t).enumerate() {
-                for (ti, v) in o.iter_mut().enumerate() {
-                    *v = sample[ti * p + px];
-                }
-            }
-        });
+        dst.par_chunks_mut((t * p).max(1))
+            .zip(src.par_chunks((t * p).max(1)))
+            .for_each(|(out, sample)| transpose_block_rows(sample, out, t, p));
         Ok(())
     })?;
     Tensor::from_vec(dst, (b, 1, h, w, t), frames.device())
