@@ -26,7 +26,7 @@ use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result, bail};
-use candle_core::{Device, Tensor};
+use candle_core::Tensor;
 use clap::Parser;
 use pednav_nets::{DsacNets, Obs, PolicyStream, init_cpu_runtime};
 use pednav_runtime::messages::{
@@ -49,6 +49,10 @@ struct Cli {
     /// Simulator instances in this actor (default: the config's `runtime.envs_per_actor`).
     #[arg(long)]
     envs: Option<usize>,
+    /// Where to run policy inference: cpu, cuda or cuda:N (default: the config's
+    /// `runtime.actor_device`).
+    #[arg(long)]
+    device: Option<pednav_nets::DeviceSpec>,
 }
 
 /// Per-environment episode bookkeeping.
@@ -110,7 +114,7 @@ fn main() -> Result<()> {
     let heartbeat = ipc.heartbeat_publisher()?;
     let mut metrics = Metrics::open(&dir.metrics(), &dir.tb(), &name)?;
 
-    let device = Device::Cpu;
+    let device = cli.device.unwrap_or(cfg.runtime.actor_device).open()?;
     // The learner builds its networks from the run seed too: version 0 is the same here and there.
     let nets = DsacNets::new(&cfg.nets, &device, cfg.seed)?;
     let mut stream = PolicyStream::new(&cfg.nets, m, &device);

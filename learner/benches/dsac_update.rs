@@ -2,7 +2,7 @@
 //! and the CPU preset's network configurations, with and without replay sampling,
 //! and the actor's policy step (full recompute vs streaming cache).
 //!
-//! `cargo bench -p pednav-learner --bench dsac_update [-- --quick] [-- --only a,c,act] [-- --json FILE]`
+//! `cargo bench -p pednav-learner --bench dsac_update [-- --quick] [-- --only a,c,act] [-- --json FILE] [-- --device cuda]`
 //! (`--only` takes the update keys a–d and `act` for the actor's policy step)
 //!
 //! The custom kernels run on the instruction set [`Isa::active`] picks (the best of
@@ -22,8 +22,7 @@
 
 use std::time::Instant;
 
-use candle_core::Device;
-use pednav_learner::{Dsac, DsacConfig, DualReplay, Frame, FrameKind, ReplayConfig, Step};
+use pednav_learner::{Dsac, DsacConfig, DualReplay, FrameKind, ReplayConfig, fill_replay};
 use pednav_nets::ops::Isa;
 use pednav_nets::{EncoderKind, NetsConfig, PolicyStream, init_cpu_runtime};
 use rand::{Rng, SeedableRng};
@@ -69,25 +68,6 @@ fn cases() -> Vec<Case> {
             pytorch_ms: 39.0,
         },
     ]
-}
-
-fn fill(replay: &mut DualReplay, size: usize, steps: usize, rng: &mut ChaCha8Rng) {
-    let mut frame = vec![0u8; size * size];
-    for i in 0..steps {
-        rng.fill(&mut frame[..]);
-        let t = i % 100;
-        let a: [f32; 3] = std::array::from_fn(|_| rng.random_range(-1.0..1.0));
-        replay
-            .push(&Step {
-                stream: 0,
-                first: t == 0,
-                frame: Frame::Pixels(&frame),
-                action: a,
-                reward: -0.1,
-                terminal: t == 99 && i % 300 == 99,
-            })
-            .unwrap();
-    }
 }
 
 fn median(mut v: Vec<f64>) -> f64 {
@@ -150,15 +130,23 @@ fn main() {
     let value_of = |flag: &str| args.iter().position(|a| a == flag).and_then(|i| args.get(i + 1)).cloned();
     let only: Option<Vec<String>> = value_of("--only").map(|v| v.split(',').map(String::from).collect());
     let json_path = value_of("--json");
+    let device_spec: pednav_nets::DeviceSpec =
+        value_of("--device").map_or(Ok(Default::default()), |d| d.parse()).unwrap_or_else(|e| panic!("--device: {e}"));
+    let device = device_spec.open().unwrap_or_else(|e| panic!("{e}"));
+    // A GPU runs asynchronously: every timed section ends with a synchronisation.
+    let sync = || device.synchronize().expect("device synchronises");
     let pytorch = value_of("--pytorch").map(|p| read_pytorch(&p)).unwrap_or_default();
     let threads = init_cpu_runtime(None);
     let isa = Isa::active();
     let cpu = cpu_model();
-    println!("threads: {threads}, kernels: {isa} (set PEDNAV_ISA=baseline|avx2|avx512 to force one), CPU: {cpu}");
+    println!(
+        "threads: {threads}, kernels: {isa} (set PEDNAV_ISA=baseline|avx2|avx512 to force one), CPU: {cpu}, device: {device_spec}"
+    );
     let mut report = serde_json::Map::new();
     report.insert("isa".into(), isa.name().into());
     report.insert("cpu".into(), cpu.clone().into());
     report.insert("threads".into(), threads.into());
+    report.insert("device".into(), device_spec.to_string().into());
     println!(
         "| config | networks only ms/update: best (median) | sample + update ms (median) | sampling share | PyTorch ms | ratio best/PyTorch |"
     );
@@ -169,12 +157,12 @@ fn main() {
             continue;
         }
         let cfg = DsacConfig { batch_size: case.batch, warmup: case.batch as u64, ..Default::default() };
-        let mut dsac = Dsac::new(&cfg, &case.nets, &Device::Cpu, 0).unwrap();
+        let mut dsac = Dsac::new(&cfg, &case.nets, &device, 0).unwrap();
         let rc = ReplayConfig { nonterminal_capacity: 5_000, terminal_capacity: 100 };
         let mut replay =
-            DualReplay::new(&rc, FrameKind::Pixels { size: case.nets.image_size }, case.nets.history, &Device::Cpu)
+            DualReplay::new(&rc, FrameKind::Pixels { size: case.nets.image_size }, case.nets.history, &device)
                 .unwrap();
-        fill(&mut replay, case.nets.image_size, 3_000, &mut rng);
+        fill_replay(&mut replay, FrameKind::Pixels { size: case.nets.image_size }, 3_000, &mut rng).unwrap();
         let reps = if quick || case.key == "a" { 3 } else { 10 };
         let batch = replay.sample(case.batch, &mut rng).unwrap();
         dsac.update(&batch).unwrap(); // warm-up (allocator, caches)
@@ -184,11 +172,13 @@ fn main() {
         for _ in 0..reps {
             let t = Instant::now();
             dsac.update(&batch).unwrap();
+            sync();
             net_ms.push(t.elapsed().as_secs_f64() * 1e3);
             let t = Instant::now();
             let b = replay.sample(case.batch, &mut rng).unwrap();
             let s = t.elapsed().as_secs_f64() * 1e3;
             dsac.update(&b).unwrap();
+            sync();
             full_ms.push(t.elapsed().as_secs_f64() * 1e3);
             sample_ms.push(s);
         }
@@ -217,10 +207,10 @@ fn main() {
     println!("|---|---|---|---|---|");
     for (history, size) in [(16, 84), (8, 42)] {
         let nets_cfg = NetsConfig { history, image_size: size, ..Default::default() };
-        let nets = pednav_nets::DsacNets::new(&nets_cfg, &Device::Cpu, 0).unwrap();
+        let nets = pednav_nets::DsacNets::new(&nets_cfg, &device, 0).unwrap();
         for envs in [1usize, 16] {
             let ids: Vec<usize> = (0..envs).collect();
-            let mut stream = PolicyStream::new(&nets_cfg, envs, &Device::Cpu);
+            let mut stream = PolicyStream::new(&nets_cfg, envs, &device);
             let mut frame = vec![0u8; size * size];
             for e in 0..envs {
                 rng.fill(&mut frame[..]);
@@ -237,11 +227,13 @@ fn main() {
                 let t = Instant::now();
                 let f = stream.features(enc, &ids).unwrap();
                 nets.policy.head(&f).unwrap();
+                sync();
                 cached.push(t.elapsed().as_secs_f64() * 1e3);
                 let t = Instant::now();
                 let obs = stream.observation(&ids).unwrap();
                 let f = enc.encode(&obs).unwrap();
                 nets.policy.head(&f).unwrap();
+                sync();
                 full.push(t.elapsed().as_secs_f64() * 1e3);
             }
             if (history, size) == (16, 84) {

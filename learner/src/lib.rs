@@ -1,8 +1,10 @@
 //! The pednav learner library: the modified DSAC update, the dual replay of the
-//! paper's Algorithm 2, the replay-ratio limiter and checkpoints.
+//! paper's Algorithm 2, the replay-ratio limiter, checkpoints, and the comparison of
+//! one update on two devices.
 
 pub mod checkpoint;
 pub mod config;
+pub mod device_check;
 pub mod dsac;
 pub mod error;
 pub mod rate;
@@ -10,6 +12,7 @@ pub mod replay;
 
 pub use checkpoint::{CheckpointMeta, load_checkpoint, read_meta, save_checkpoint};
 pub use config::DsacConfig;
+pub use device_check::{DeviceComparison, compare_update, fill_replay};
 pub use dsac::{Dsac, UpdateStats, fraction_gradient, quantile_huber_loss};
 pub use error::{LearnerError, Result};
 pub use rate::RateLimiter;

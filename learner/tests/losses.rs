@@ -91,6 +91,32 @@ fn small() -> (DsacConfig, NetsConfig) {
     )
 }
 
+/// The device check's comparison: the same device twice gives identical losses and
+/// weights and passes; each tolerance fails just beyond its bound (lr 3e-4 → two Adam
+/// steps 6e-4 + 1e-5).
+#[test]
+fn one_update_on_two_devices_is_compared_weight_by_weight() {
+    let (mut cfg, nets) = small();
+    (cfg.lr_policy, cfg.lr_quantile, cfg.lr_fraction, cfg.lr_alpha) = (3e-4, 3e-4, 1e-4, 3e-4);
+    let same =
+        pednav_learner::compare_update(&cfg, &nets, FrameKind::State { dim: 4 }, &Device::Cpu, &Device::Cpu, 3).unwrap();
+    assert!(same.passes() && same.weights > 1000, "{same:?}");
+    assert_eq!((same.loss_rel_diff, same.weight_max_diff, same.weight_p999_diff), (0.0, 0.0, 0.0));
+    assert_eq!(same.a.critic_loss, same.b.critic_loss);
+    assert_eq!(same.max_lr, 3e-4);
+    for (field, ok, bad) in [("losses", 0.9e-3, 1.1e-3), ("p999", 0.9e-5, 1.1e-5), ("max", 6.09e-4, 6.11e-4)] {
+        for (value, passes) in [(ok, true), (bad, false)] {
+            let mut c = same.clone();
+            match field {
+                "losses" => c.loss_rel_diff = value,
+                "p999" => c.weight_p999_diff = value,
+                _ => c.weight_max_diff = value,
+            }
+            assert_eq!(c.passes(), passes, "{field} = {value}");
+        }
+    }
+}
+
 #[test]
 fn temperature_moves_toward_the_target_entropy_by_one_adam_step() {
     let mut rng = ChaCha8Rng::seed_from_u64(4);

@@ -185,6 +185,38 @@ fn a_bad_config_stops_before_any_process_starts() {
     assert!(!out.status.success() && err.contains("variant") && err.contains("navacl_sideways"), "{err}");
 }
 
+/// Asking for a GPU from binaries built without CUDA (these tests' build) stops the
+/// launch before anything starts, saying how to build them; so does `check`.
+#[test]
+fn a_gpu_device_without_cuda_binaries_stops_before_any_process_starts() {
+    let root = scratch_dir("runtime-no-cuda");
+    let run_dir = root.join("run");
+    let smoke = workspace_root().join("deploy/configs/smoke.toml");
+    let out = Command::new(workspace_root().join("deploy/run_local.sh"))
+        .args(["--actors", "1", "--config", smoke.to_str().unwrap(), "--run-dir", run_dir.to_str().unwrap()])
+        .args(["--device", "cuda:1"])
+        .env("PEDNAV_SKIP_BUILD", "1")
+        .env("PEDNAV_BIN_DIR", bin_dir())
+        .output()
+        .unwrap();
+    assert!(!out.status.success());
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(err.contains("cuda:1") && err.contains("--device") && err.contains("build_cuda.sh"), "{err}");
+    assert!(!run_dir.exists(), "nothing was created");
+
+    let config = root.join("gpu-actors.toml");
+    let text = std::fs::read_to_string(&smoke).unwrap();
+    std::fs::write(&config, format!("{text}actor_device = \"cuda\"\n")).unwrap();
+    let out = Command::new(bin_dir().join("pednav-run")).args(["check", config.to_str().unwrap()]).output().unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success() && err.contains("runtime.actor_device") && err.contains("build_cuda.sh"), "{err}");
+
+    std::fs::write(&config, format!("{text}device = \"gpu\"\n")).unwrap();
+    let out = Command::new(bin_dir().join("pednav-run")).args(["check", config.to_str().unwrap()]).output().unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success() && err.contains("gpu") && err.contains("cuda:N"), "{err}");
+}
+
 #[test]
 fn two_runs_side_by_side_do_not_interfere_and_stop_at_their_budget() {
     let root = scratch_dir("runtime-side-by-side");

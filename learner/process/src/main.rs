@@ -19,7 +19,6 @@ use std::path::PathBuf;
 use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result};
-use candle_core::Device;
 use clap::Parser;
 use pednav_learner::{Dsac, DualReplay, Frame, FrameKind, RateLimiter, Step, load_checkpoint, save_checkpoint};
 use pednav_nets::init_cpu_runtime;
@@ -42,6 +41,9 @@ struct Cli {
     /// Compute threads (default: all cores).
     #[arg(long)]
     threads: Option<usize>,
+    /// Where to train: cpu, cuda or cuda:N (default: the config's `runtime.device`).
+    #[arg(long)]
+    device: Option<pednav_nets::DeviceSpec>,
 }
 
 /// Records received from one actor incarnation (for the integration test's
@@ -134,7 +136,9 @@ fn main() -> Result<()> {
     let stop = StopFlag::install();
     let dir = RunDir::new(&cli.run_dir);
     let cfg = dir.load_config()?;
-    let device = Device::Cpu;
+    let device_spec = cli.device.unwrap_or(cfg.runtime.device);
+    let device = device_spec.open()?;
+    tracing::info!(device = %device_spec, "learner device");
     let mut dsac = Dsac::new(&cfg.dsac, &cfg.nets, &device, cfg.seed)?;
     let mut limiter = RateLimiter::new(cfg.dsac.warmup, cfg.dsac.train_interval, cfg.dsac.rate_slack);
     let mut sample_rng = ChaCha8Rng::seed_from_u64(cfg.seed);

@@ -66,13 +66,14 @@ struct Running {
     trajectory: Vec<[f32; 2]>,
 }
 
-/// The networks of a run's latest checkpoint.
-pub fn load_policy(run_dir: &Path) -> Result<(RunConfig, DsacNets)> {
+/// The networks of a run's latest checkpoint, on `device` (checkpoints load on any
+/// device, whichever one wrote them).
+pub fn load_policy(run_dir: &Path, device: &Device) -> Result<(RunConfig, DsacNets)> {
     let cfg = RunConfig::load(&run_dir.join("config.toml"))
         .map_err(|e| ExperimentError::file(&run_dir.join("config.toml"), e))?;
     let ckpt = run_dir.join("checkpoints").join("learner");
     let mut dsac =
-        Dsac::new(&cfg.dsac, &cfg.nets, &Device::Cpu, cfg.seed).map_err(|e| ExperimentError::file(&ckpt, e))?;
+        Dsac::new(&cfg.dsac, &cfg.nets, device, cfg.seed).map_err(|e| ExperimentError::file(&ckpt, e))?;
     load_checkpoint(&ckpt, &mut dsac).map_err(|e| ExperimentError::file(&ckpt, e))?;
     Ok((cfg, dsac.nets))
 }
@@ -96,7 +97,8 @@ impl Evaluator {
         let obs_mode = if learned { sim.obs_mode } else { ObsMode::StateDebug };
         let world = Arc::new(SimWorld::new(scene, SimConfig { t_max, obs_mode, ..sim.clone() })?);
         let envs_ = VecEnv::new(world.clone(), envs, BackendChoice::from_env().map_err(ExperimentError::Plot)?)?;
-        let device = Device::Cpu;
+        // Inference runs where the networks were loaded.
+        let device = nets.as_ref().map_or(Device::Cpu, |(_, n)| n.policy.store.device().clone());
         let policy = match kind {
             PolicyKind::Learned { deterministic } => {
                 let (cfg, nets) =

@@ -16,6 +16,14 @@ pub enum NetError {
         /// What is allowed.
         message: String,
     },
+    /// A compute device cannot be used (not built in, or not present).
+    #[error("device `{device}`: {message}")]
+    Device {
+        /// The device as named (`cuda:1`).
+        device: String,
+        /// Why it cannot be used and what to do.
+        message: String,
+    },
     /// Saved weights do not match the network they are loaded into.
     #[error("weights for `{network}` do not match: {message}")]
     Incompatible {

@@ -6,6 +6,7 @@
 //! Call [`init_cpu_runtime`] once at process start-up.
 
 pub mod config;
+pub mod device;
 pub mod encoder;
 pub mod error;
 pub mod heads;
@@ -18,6 +19,7 @@ pub mod runtime;
 pub mod stream;
 
 pub use config::{ACTION_DIM, EncoderKind, NetsConfig};
+pub use device::{CUDA_BUILT, DeviceSpec};
 pub use encoder::{Encoder, Obs, temporal_plan};
 pub use error::{NetError, Result};
 pub use heads::{CholeskyGaussian, FractionNet, Fractions, PolicyNet, PolicySample, QuantileGrid, QuantileNet};

@@ -10,7 +10,7 @@ use std::path::{Path, PathBuf};
 
 use pednav_curriculum::CurriculumConfig;
 use pednav_learner::{DsacConfig, ReplayConfig};
-use pednav_nets::{EncoderKind, NetsConfig};
+use pednav_nets::{DeviceSpec, EncoderKind, NetsConfig};
 use pednav_sim::{ObsMode, STATE_OBS_DIM, Scene, SimConfig};
 use serde::{Deserialize, Serialize};
 
@@ -56,6 +56,12 @@ pub struct RuntimeConfig {
     pub max_updates: u64,
     /// Stop the run after this many env steps received by the learner (0: until stopped).
     pub max_env_steps: u64,
+    /// Where the learner trains: "cpu", "cuda" or "cuda:N". CUDA needs the binaries
+    /// built by `deploy/build_cuda.sh`; `--device` on `pednav-run launch` overrides it.
+    pub device: DeviceSpec,
+    /// Where the actors run policy inference ("cpu", "cuda", "cuda:N"; the simulator
+    /// renders on the CPU either way); `--actor-device` on launch overrides it.
+    pub actor_device: DeviceSpec,
 }
 
 impl Default for RuntimeConfig {
@@ -73,6 +79,8 @@ impl Default for RuntimeConfig {
             task_timeout_secs: 120.0,
             max_updates: 0,
             max_env_steps: 0,
+            device: DeviceSpec::Cpu,
+            actor_device: DeviceSpec::Cpu,
         }
     }
 }

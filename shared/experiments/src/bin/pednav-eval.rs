@@ -73,6 +73,10 @@ struct Cli {
     /// Skip the oracle column (planning takes a few seconds).
     #[arg(long)]
     no_oracle: bool,
+    /// Where the policy runs: cpu, cuda or cuda:N (CUDA needs the binaries of
+    /// `deploy/build_cuda.sh`; rendering stays on the CPU).
+    #[arg(long, default_value_t = pednav_nets::DeviceSpec::Cpu)]
+    device: pednav_nets::DeviceSpec,
     /// (internal) worker index.
     #[arg(long, hide = true)]
     shard: Option<usize>,
@@ -95,7 +99,7 @@ fn kind(cli: &Cli) -> PolicyKind {
 fn setup(cli: &Cli) -> Result<(RunConfig, Option<(pednav_nets::NetsConfig, pednav_nets::DsacNets)>)> {
     match (&cli.run_dir, cli.policy) {
         (Some(dir), PolicyArg::Learned) => {
-            let (cfg, nets) = load_policy(dir)?;
+            let (cfg, nets) = load_policy(dir, &cli.device.open()?)?;
             let nc = cfg.nets.clone();
             Ok((cfg, Some((nc, nets))))
         }
@@ -246,6 +250,7 @@ fn run_workers(cli: &Cli, out: &Path) -> Result<Vec<EpisodeResult>> {
             .args(["--runs", &cli.runs.to_string(), "--t-max", &cli.t_max.to_string()])
             .args(["--envs", &cli.envs.to_string(), "--seed", &cli.seed.to_string()])
             .args(["--shard", &k.to_string(), "--of", &cli.workers.to_string()])
+            .args(["--device", &cli.device.to_string()])
             .arg("--shard-out")
             .arg(&shard_out);
         children.push((cmd.spawn().context("starting a worker")?, shard_out));

@@ -25,6 +25,7 @@ use anyhow::{Context, Result, bail};
 mod bench;
 use clap::{Parser, Subcommand};
 use pednav_runtime::messages::process_kind;
+use pednav_nets::DeviceSpec;
 use pednav_runtime::{Ipc, RunConfig, RunDir, StopFlag, run_prefix};
 
 #[derive(Parser)]
@@ -59,6 +60,13 @@ enum Cmd {
         /// Simulator instances per actor (default: the config's `runtime.envs_per_actor`).
         #[arg(long)]
         envs: Option<usize>,
+        /// Where the learner trains: cpu, cuda or cuda:N (default: the config's
+        /// `runtime.device`). CUDA needs the binaries of `deploy/build_cuda.sh`.
+        #[arg(long)]
+        device: Option<DeviceSpec>,
+        /// Where the actors run policy inference (default: the config's `runtime.actor_device`).
+        #[arg(long)]
+        actor_device: Option<DeviceSpec>,
     },
     /// Measure the runtime: step-stream throughput, weights latency, whole-system env steps/s.
     #[command(subcommand)]
@@ -76,12 +84,14 @@ fn main() -> Result<()> {
         Cmd::Bench(b) => bench::run(b),
         Cmd::Check { config } => {
             let cfg = RunConfig::load(&config)?;
+            check_devices(cfg.runtime.device, cfg.runtime.actor_device)
+                .with_context(|| format!("{}: the config is valid, but its devices cannot be used", config.display()))?;
             print!("{}", cfg.to_toml());
             eprintln!("{}: valid", config.display());
             Ok(())
         }
-        Cmd::Launch { actors, config, run_dir, seed, bin_dir, learner_threads, envs } => {
-            launch(Launch { actors, config, run_dir, seed, bin_dir, learner_threads, envs })
+        Cmd::Launch { actors, config, run_dir, seed, bin_dir, learner_threads, envs, device, actor_device } => {
+            launch(Launch { actors, config, run_dir, seed, bin_dir, learner_threads, envs, device, actor_device })
         }
     }
 }
@@ -191,10 +201,26 @@ struct Launch {
     bin_dir: Option<PathBuf>,
     learner_threads: Option<usize>,
     envs: Option<usize>,
+    device: Option<DeviceSpec>,
+    actor_device: Option<DeviceSpec>,
+}
+
+/// Open every GPU the run will use, so a missing CUDA build or GPU stops the launch
+/// before any process starts (the CPU needs no check).
+fn check_devices(learner: DeviceSpec, actors: DeviceSpec) -> Result<()> {
+    for (whose, spec, field) in [
+        ("the learner's", learner, "runtime.device / --device"),
+        ("the actors'", actors, "runtime.actor_device / --actor-device"),
+    ] {
+        if spec.is_gpu() {
+            spec.open().with_context(|| format!("{whose} device ({field})"))?;
+        }
+    }
+    Ok(())
 }
 
 fn launch(args: Launch) -> Result<()> {
-    let Launch { actors, config, run_dir, seed, bin_dir, learner_threads, envs } = args;
+    let Launch { actors, config, run_dir, seed, bin_dir, learner_threads, envs, device, actor_device } = args;
     if let Some(m) = envs
         && (m == 0 || m > 4096)
     {
@@ -229,6 +255,9 @@ fn launch(args: Launch) -> Result<()> {
         }
         (None, None) => bail!("pass --config FILE (a new run) or --run-dir DIR (resume)"),
     };
+    let (learner_device, actor_device) =
+        (device.unwrap_or(cfg.runtime.device), actor_device.unwrap_or(cfg.runtime.actor_device));
+    check_devices(learner_device, actor_device)?;
     let bins = bin_dir.map_or_else(default_bin_dir, Ok)?;
     for b in ["pednav-actor", "pednav-learner", "pednav-curriculum"] {
         if !bins.join(b).exists() {
@@ -252,7 +281,8 @@ fn launch(args: Launch) -> Result<()> {
         Ipc::new(&run_prefix(&run_dir), "launcher", cfg.runtime.step_buffer, Duration::from_secs(5), stop.clone())?;
     let heartbeats = ipc.heartbeat_subscriber()?;
     eprintln!(
-        "pednav: {} run {} — {} actor(s) × {} envs, variant {:?}, iceoryx2 prefix {}",
+        "pednav: {} run {} — {} actor(s) × {} envs, variant {:?}, learner on {learner_device}, actors' inference \
+         on {actor_device}, iceoryx2 prefix {}",
         if resumed { "resuming" } else { "starting" },
         run_dir.display(),
         actors,
@@ -272,14 +302,21 @@ fn launch(args: Launch) -> Result<()> {
     };
     let mut curriculum =
         mk("curriculum".into(), "pednav-curriculum", vec!["serve".into(), "--run-dir".into(), rd.clone()]);
-    let mut learner_args = vec!["--run-dir".into(), rd.clone()];
+    let mut learner_args = vec!["--run-dir".into(), rd.clone(), "--device".into(), learner_device.to_string()];
     if let Some(t) = learner_threads {
         learner_args.extend(["--threads".into(), t.to_string()]);
     }
     let mut learner = mk("learner".into(), "pednav-learner", learner_args);
     let mut actor_procs: Vec<Proc> = (0..actors)
         .map(|k| {
-            let mut args = vec!["--run-dir".into(), rd.clone(), "--actor".into(), k.to_string()];
+            let mut args = vec![
+                "--run-dir".into(),
+                rd.clone(),
+                "--actor".into(),
+                k.to_string(),
+                "--device".into(),
+                actor_device.to_string(),
+            ];
             if let Some(m) = envs {
                 args.extend(["--envs".into(), m.to_string()]);
             }

@@ -1,0 +1,90 @@
+#!/usr/bin/env bash
+# Build pednav's CUDA binaries on any x86-64 Linux machine — no GPU needed to build.
+#
+#   ./deploy/build_cuda.sh            # release binaries + bench into target-cuda/, stripped,
+#                                     # and target-cuda/pednav-cuda.tar.xz to carry to a GPU machine
+#   ./deploy/build_cuda.sh --bins     # only the process binaries (target-cuda/release; what
+#                                     # `run_local.sh --device cuda` runs)
+#   ./deploy/build_cuda.sh --check    # only `cargo check` the CUDA build (what CI runs)
+#
+# What it does:
+# - installs NVIDIA's CUDA compiler from PyPI (nvidia-cuda-nvcc, -cccl, -runtime, -crt)
+#   into a virtualenv outside the repository ($PEDNAV_CUDA_VENV, default
+#   ~/.venvs/pednav-cuda, ≈ 370 MB) on first use;
+# - builds with `--features pednav-nets/cuda` into its own target directory
+#   ($PEDNAV_CUDA_TARGET, default target-cuda), so the CPU build stays as it is.
+#
+# Environment: CUDA_COMPUTE_CAP (default 90: H100/H200; 80 for A100, 89 for L4/4090)
+# picks the GPU generation candle's kernels are compiled for; CUDARC_CUDA_VERSION
+# (default 13000) the CUDA API level cudarc binds (13.0 runs on any CUDA 13 driver;
+# cudarc 0.19 rejects nvcc 13.5's own version string). The binaries load the CUDA
+# driver library at run time, so they start on machines without one and report
+# `--device cuda` as unavailable there.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+mode=build
+case "${1:-}" in
+    --check) mode=check ;;
+    --bins) mode=bins ;;
+    "") ;;
+    -h|--help) sed -n '2,23p' "$0" | sed 's/^# \{0,1\}//'; exit 0 ;;
+    *) echo "build_cuda.sh: unknown argument '$1' (try --help)" >&2; exit 2 ;;
+esac
+
+venv="${PEDNAV_CUDA_VENV:-$HOME/.venvs/pednav-cuda}"
+target="${PEDNAV_CUDA_TARGET:-target-cuda}"
+packages=(nvidia-cuda-nvcc nvidia-cuda-cccl nvidia-cuda-runtime nvidia-cuda-crt)
+cuda_root() {
+    "$venv/bin/python" - <<'PY'
+import os, nvidia
+for base in nvidia.__path__:
+    for sub in sorted(os.listdir(base), reverse=True):
+        if os.path.isfile(os.path.join(base, sub, "bin", "nvcc")):
+            print(os.path.join(base, sub)); raise SystemExit
+PY
+}
+if [ ! -x "$venv/bin/python" ] || [ -z "$(cuda_root 2>/dev/null)" ]; then
+    echo "build_cuda.sh: installing the CUDA compiler into $venv (PyPI: ${packages[*]})" >&2
+    command -v python3 >/dev/null || { echo "error: python3 is needed to install nvcc from PyPI" >&2; exit 1; }
+    python3 -m venv "$venv" || { echo "error: cannot create $venv (on Debian/Ubuntu: apt-get install -y python3-venv)" >&2; exit 1; }
+    "$venv/bin/pip" install -q --upgrade pip
+    "$venv/bin/pip" install -q "${packages[@]}"
+fi
+root="$(cuda_root)"
+[ -n "$root" ] || { echo "error: no nvcc found under $venv after installing ${packages[*]}" >&2; exit 1; }
+export PATH="$root/bin:$PATH" CUDA_ROOT="$root" CUDA_PATH="$root" CUDA_TOOLKIT_ROOT_DIR="$root"
+export CUDA_COMPUTE_CAP="${CUDA_COMPUTE_CAP:-90}" CUDARC_CUDA_VERSION="${CUDARC_CUDA_VERSION:-13000}"
+export CARGO_BUILD_JOBS="${CARGO_BUILD_JOBS:-$(nproc)}"
+echo "build_cuda.sh: $(nvcc --version | tail -1), compute capability $CUDA_COMPUTE_CAP, target dir $target" >&2
+features=(--features pednav-nets/cuda)
+start=$(date +%s)
+
+if [ "$mode" = check ]; then
+    cargo check --locked --target-dir "$target" "${features[@]}" \
+        -p pednav-nets -p pednav-learner -p pednav-learner-process -p pednav-actor -p pednav-experiments --all-targets
+    echo "build_cuda.sh: CUDA build checks ($(( $(date +%s) - start )) s)" >&2
+    exit 0
+fi
+
+bins=(pednav-run pednav-learner pednav-device-check pednav-actor pednav-curriculum pednav-eval)
+cargo build --release --locked --target-dir "$target" "${features[@]}" \
+    -p pednav-runtime -p pednav-learner-process -p pednav-actor -p pednav-curriculum-service -p pednav-experiments
+if [ "$mode" = bins ]; then
+    echo "build_cuda.sh: binaries in $target/release ($(( $(date +%s) - start )) s)" >&2
+    exit 0
+fi
+bench=$(cargo bench --locked --target-dir "$target" "${features[@]}" -p pednav-learner --bench dsac_update --no-run \
+    --message-format=json 2>/dev/null | sed -n 's/.*"executable":"\([^"]*\)".*/\1/p' | tail -1)
+[ -x "$bench" ] || { echo "error: the dsac_update bench did not build" >&2; exit 1; }
+out="$target/bin"
+mkdir -p "$out"
+for b in "${bins[@]}"; do strip -o "$out/$b" "$target/release/$b"; done
+strip -o "$out/dsac_update" "$bench"
+tar -C "$out" -cJf "$target/pednav-cuda.tar.xz" "${bins[@]}" dsac_update
+# The PyTorch reference travels too (gpu_check.sh compares against it on the GPU).
+if [ -f ../shared/bench/torch_ref/dsac_ref.py ]; then
+    mkdir -p "$target/torch_ref" && cp ../shared/bench/torch_ref/dsac_ref.py "$target/torch_ref/"
+fi
+echo "build_cuda.sh: built in $(( $(date +%s) - start )) s; stripped binaries in $out:" >&2
+ls -l "$out" >&2
+echo "build_cuda.sh: carry $target/pednav-cuda.tar.xz ($(du -h "$target/pednav-cuda.tar.xz" | cut -f1)) to the GPU machine and run deploy/gpu_check.sh there" >&2

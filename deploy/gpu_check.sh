@@ -1,0 +1,112 @@
+#!/usr/bin/env bash
+# The GPU checks of pednav, in one script for a machine with an NVIDIA GPU, the CUDA
+# driver and the binaries of deploy/build_cuda.sh — no Rust toolchain needed.
+#
+#   ./deploy/gpu_check.sh [BINS] [OUT_DIR]
+#
+# BINS: target-cuda/pednav-cuda.tar.xz (default) or a folder holding its binaries.
+# OUT_DIR: where figures and logs go (default: $OUT if set, else gpu-check-out).
+# Steps (each prints its figures; a failing step is reported and the others still run):
+#   1. the GPU (nvidia-smi);
+#   2. correctness: one DSAC update on the CPU and on the GPU from the same weights and
+#      batch, CPU preset and paper networks (pednav-device-check: losses within 1e-3,
+#      weights within two Adam steps);
+#   3. the learner bench on CUDA, configs (a)–(d) and the actor's step
+#      (dsac_update --device cuda --json OUT_DIR/cuda.json);
+#   4. PyTorch's reference of the same update on the same GPU, when a Python with
+#      torch is available (dsac_ref.py --device cuda), and the ratios;
+#   5. a 5-minute paper-config training run (NavACL⁺ (S), 84², N_h 16, batch 64;
+#      warm-up cut to 5,000 steps so updates start): learner on the GPU, one actor
+#      rendering on the CPU; prints ms per update and env steps/s.
+# Exit status: non-zero if the correctness check failed.
+set -uo pipefail
+cd "$(dirname "$0")/.."
+bins_in="${1:-target-cuda/pednav-cuda.tar.xz}"
+out="${2:-${OUT:-gpu-check-out}}"
+mkdir -p "$out"
+out="$(cd "$out" && pwd)"
+log() { echo "== $*" | tee -a "$out/summary.txt"; }
+status=0
+
+if [ -d "$bins_in" ]; then
+    bins="$(cd "$bins_in" && pwd)"
+elif [ -f "$bins_in" ]; then
+    bins="$(mktemp -d)"
+    tar -C "$bins" -xJf "$bins_in" || { echo "error: cannot unpack $bins_in" >&2; exit 1; }
+else
+    echo "error: $bins_in not found: build it with deploy/build_cuda.sh and carry it here" >&2
+    exit 1
+fi
+for b in pednav-device-check dsac_update pednav-run pednav-learner pednav-actor pednav-curriculum; do
+    [ -x "$bins/$b" ] || { echo "error: $bins/$b missing (rebuild with deploy/build_cuda.sh)" >&2; exit 1; }
+done
+
+log "1. GPU"
+nvidia-smi --query-gpu=name,memory.total,driver_version --format=csv 2>&1 | tee -a "$out/summary.txt"
+grep -m1 'model name' /proc/cpuinfo | tee -a "$out/summary.txt"
+
+log "2. correctness: one update on cpu and cuda"
+for cfg in deploy/configs/cpu_reduced.toml deploy/configs/paper/navacl_plus_s_16.toml; do
+    if ! "$bins/pednav-device-check" --device cuda --config "$cfg" 2>>"$out/device-check.log" | tee -a "$out/summary.txt"; then
+        log "FAILED: device check with $cfg (see $out/device-check.log)"
+        status=1
+    fi
+done
+
+log "3. learner bench on cuda"
+"$bins/dsac_update" --device cuda --json "$out/cuda.json" 2>&1 | tee "$out/bench-cuda.txt" | grep -v '^$' | tee -a "$out/summary.txt" \
+    || log "FAILED: dsac_update --device cuda (see $out/bench-cuda.txt)"
+
+log "4. PyTorch on the same GPU"
+ref=""
+for r in ../shared/bench/torch_ref/dsac_ref.py target-cuda/torch_ref/dsac_ref.py; do [ -f "$r" ] && ref="$r" && break; done
+if [ -n "$ref" ] && python3 -c 'import torch; assert torch.cuda.is_available()' 2>/dev/null; then
+    python3 "$ref" --device cuda --only A B C D act --warmup 3 --iters 10 > "$out/pytorch-cuda.txt" 2>"$out/pytorch-cuda.log" \
+        || log "FAILED: PyTorch reference (see $out/pytorch-cuda.log)"
+    cat "$out/pytorch-cuda.txt" | tee -a "$out/summary.txt"
+    python3 - "$out" <<'PY' | tee -a "$out/summary.txt"
+import json, sys
+out = sys.argv[1]
+ours = json.load(open(f"{out}/cuda.json"))
+keys = {"A": "a", "B": "b", "C": "c", "D": "d", "act_nograd_b1": "act_full_1", "act_nograd_b16": "act_full_16"}
+print("| config | ours ms (best) | PyTorch ms | ours / PyTorch |")
+print("|---|---|---|---|")
+for line in open(f"{out}/pytorch-cuda.txt"):
+    parts = line.split()
+    if len(parts) != 2:
+        continue
+    key = next((v for k, v in keys.items() if parts[0].startswith(k + "_")), None)
+    if key in ours:
+        p = float(parts[1])
+        print(f"| {key} | {ours[key]['best_ms']:.2f} | {p:.2f} | {ours[key]['best_ms'] / p:.2f} |")
+PY
+else
+    log "skipped: no dsac_ref.py (carry ../shared/bench/torch_ref as target-cuda/torch_ref) or no torch with CUDA"
+fi
+
+log "5. 5-minute paper-config run: learner on cuda, 1 actor on the CPU"
+run="$(mktemp -d)/run"
+cfg="$out/paper-check.toml"
+if "$bins/pednav-run" check deploy/configs/paper/navacl_plus_s_16.toml 2>/dev/null \
+    | sed 's/^warmup = .*/warmup = 5000/' > "$cfg"; then
+    timeout -s INT 300 "$bins/pednav-run" launch --actors 1 --config "$cfg" --run-dir "$run" --device cuda \
+        --bin-dir "$bins" 2> "$out/run.log"
+    cp "$run/metrics/learner.csv" "$out/learner.csv" 2>/dev/null
+    tail -c 2000 "$out/run.log" | tr '\r' '\n' | tail -5 | tee -a "$out/summary.txt"
+    python3 - "$out/learner.csv" <<'PY' 2>&1 | tee -a "$out/summary.txt" || log "FAILED: no learner metrics (see $out/run.log and $run/logs)"
+import csv, sys
+rows = list(csv.DictReader(open(sys.argv[1])))
+if len(rows) < 2:
+    raise SystemExit("run too short to measure")
+first, last = rows[0], rows[-1]
+dt = float(last["elapsed_s"]) - float(first["elapsed_s"])
+steps = float(last["step"]) - float(first["step"])
+ups = float(last.get("updates", 0) or 0) - float(first.get("updates", 0) or 0)
+print(f"env steps/s {steps / dt:.0f}; updates {ups:.0f} in {dt:.0f} s" + (f" = {1e3 * dt / ups:.1f} ms per update (learner-side wall time)" if ups > 0 else ""))
+PY
+    cp -r "$run/logs" "$out/run-logs" 2>/dev/null
+else
+    log "FAILED: cannot resolve the paper config"
+fi
+log "done: figures in $out (status $status)"
+exit $status
