@@ -84,14 +84,21 @@ impl AdamW {
         self.steps
     }
 
-    /// Global L2 norm of the gradients of this optimiser's parameters (missing gradients count as 0).
+    /// Global L2 norm of the gradients of this optimiser's parameters (missing gradients
+    /// count as 0). The per-tensor sums stay on the gradients' device and are added
+    /// there: one read back to the host per call, not one per tensor (each read
+    /// synchronises a GPU).
     pub fn grad_norm(&self, grads: &GradStore) -> Result<f64> {
-        let mut sq = 0f64;
+        let mut parts = Vec::with_capacity(self.params.len());
         for (_, p) in &self.params {
             if let Some(g) = grads.get(p.as_tensor()) {
-                sq += g.sqr()?.sum_all()?.to_dtype(candle_core::DType::F64)?.to_scalar::<f64>()?;
+                parts.push(g.sqr()?.sum_all()?);
             }
         }
+        if parts.is_empty() {
+            return Ok(0.0);
+        }
+        let sq = Tensor::stack(&parts, 0)?.to_dtype(candle_core::DType::F64)?.sum_all()?.to_scalar::<f64>()?;
         Ok(sq.sqrt())
     }
 
