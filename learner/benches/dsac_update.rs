@@ -160,8 +160,7 @@ fn main() {
         let mut dsac = Dsac::new(&cfg, &case.nets, &device, 0).unwrap();
         let rc = ReplayConfig { nonterminal_capacity: 5_000, terminal_capacity: 100 };
         let mut replay =
-            DualReplay::new(&rc, FrameKind::Pixels { size: case.nets.image_size }, case.nets.history, &device)
-                .unwrap();
+            DualReplay::new(&rc, FrameKind::Pixels { size: case.nets.image_size }, case.nets.history, &device).unwrap();
         fill_replay(&mut replay, FrameKind::Pixels { size: case.nets.image_size }, 3_000, &mut rng).unwrap();
         let reps = if quick || case.key == "a" { 3 } else { 10 };
         let batch = replay.sample(case.batch, &mut rng).unwrap();

@@ -24,14 +24,20 @@ use crate::replay::{DualReplay, Frame, FrameKind, ReplayConfig, Step};
 /// state vectors), actions and rewards, episodes of 100 steps of which every third
 /// ends at the goal. Benchmarks and device checks use it; it trains nothing.
 pub fn fill_replay(replay: &mut DualReplay, kind: FrameKind, steps: usize, rng: &mut ChaCha8Rng) -> Result<()> {
-    let mut frame = vec![0u8; match kind {
-        FrameKind::Pixels { size } => size * size,
-        FrameKind::State { .. } => 0,
-    }];
-    let mut state = vec![0f32; match kind {
-        FrameKind::State { dim } => dim,
-        FrameKind::Pixels { .. } => 0,
-    }];
+    let mut frame = vec![
+        0u8;
+        match kind {
+            FrameKind::Pixels { size } => size * size,
+            FrameKind::State { .. } => 0,
+        }
+    ];
+    let mut state = vec![
+        0f32;
+        match kind {
+            FrameKind::State { dim } => dim,
+            FrameKind::Pixels { .. } => 0,
+        }
+    ];
     for i in 0..steps {
         rng.fill(&mut frame[..]);
         for v in state.iter_mut() {
@@ -43,7 +49,14 @@ pub fn fill_replay(replay: &mut DualReplay, kind: FrameKind, steps: usize, rng: 
             FrameKind::Pixels { .. } => Frame::Pixels(&frame),
             FrameKind::State { .. } => Frame::State(&state),
         };
-        replay.push(&Step { stream: 0, first: t == 0, frame, action, reward: -0.1, terminal: t == 99 && i % 300 == 99 })?;
+        replay.push(&Step {
+            stream: 0,
+            first: t == 0,
+            frame,
+            action,
+            reward: -0.1,
+            terminal: t == 99 && i % 300 == 99,
+        })?;
     }
     Ok(())
 }

@@ -98,8 +98,8 @@ fn small() -> (DsacConfig, NetsConfig) {
 fn one_update_on_two_devices_is_compared_weight_by_weight() {
     let (mut cfg, nets) = small();
     (cfg.lr_policy, cfg.lr_quantile, cfg.lr_fraction, cfg.lr_alpha) = (3e-4, 3e-4, 1e-4, 3e-4);
-    let same =
-        pednav_learner::compare_update(&cfg, &nets, FrameKind::State { dim: 4 }, &Device::Cpu, &Device::Cpu, 3).unwrap();
+    let same = pednav_learner::compare_update(&cfg, &nets, FrameKind::State { dim: 4 }, &Device::Cpu, &Device::Cpu, 3)
+        .unwrap();
     assert!(same.passes() && same.weights > 1000, "{same:?}");
     assert_eq!((same.loss_rel_diff, same.weight_max_diff, same.weight_p999_diff), (0.0, 0.0, 0.0));
     assert_eq!(same.a.critic_loss, same.b.critic_loss);

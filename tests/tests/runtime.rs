@@ -168,21 +168,34 @@ fn a_bad_config_stops_before_any_process_starts() {
     let bad = root.join("bad.toml");
     std::fs::write(&bad, "[runtime]\nenvs_per_actor = 0\n").unwrap();
     let run_dir = root.join("run");
+    let err = refused_launch(&bad, &run_dir, &[]);
+    assert!(err.contains("runtime.envs_per_actor") && err.contains("bad.toml"), "{err}");
+
+    std::fs::write(&bad, "[curriculum]\nvariant = \"navacl_sideways\"\n").unwrap();
+    let err = refused_check(&bad);
+    assert!(err.contains("variant") && err.contains("navacl_sideways"), "{err}");
+}
+
+/// `run_local.sh` with `config` and `extra` flags, which must fail before creating
+/// `run_dir`; its stderr.
+fn refused_launch(config: &Path, run_dir: &Path, extra: &[&str]) -> String {
     let out = Command::new(workspace_root().join("deploy/run_local.sh"))
-        .args(["--actors", "1", "--config", bad.to_str().unwrap(), "--run-dir", run_dir.to_str().unwrap()])
+        .args(["--actors", "1", "--config", config.to_str().unwrap(), "--run-dir", run_dir.to_str().unwrap()])
+        .args(extra)
         .env("PEDNAV_SKIP_BUILD", "1")
         .env("PEDNAV_BIN_DIR", bin_dir())
         .output()
         .unwrap();
-    assert!(!out.status.success());
-    let err = String::from_utf8_lossy(&out.stderr);
-    assert!(err.contains("runtime.envs_per_actor") && err.contains("bad.toml"), "{err}");
+    assert!(!out.status.success(), "the launch was refused");
     assert!(!run_dir.exists(), "nothing was created");
+    String::from_utf8_lossy(&out.stderr).into_owned()
+}
 
-    std::fs::write(&bad, "[curriculum]\nvariant = \"navacl_sideways\"\n").unwrap();
-    let out = Command::new(bin_dir().join("pednav-run")).args(["check", bad.to_str().unwrap()]).output().unwrap();
-    let err = String::from_utf8_lossy(&out.stderr);
-    assert!(!out.status.success() && err.contains("variant") && err.contains("navacl_sideways"), "{err}");
+/// `pednav-run check config`, which must fail; its stderr.
+fn refused_check(config: &Path) -> String {
+    let out = Command::new(bin_dir().join("pednav-run")).args(["check", config.to_str().unwrap()]).output().unwrap();
+    assert!(!out.status.success(), "the check failed");
+    String::from_utf8_lossy(&out.stderr).into_owned()
 }
 
 /// Asking for a GPU from binaries built without CUDA (these tests' build) stops the
@@ -192,29 +205,18 @@ fn a_gpu_device_without_cuda_binaries_stops_before_any_process_starts() {
     let root = scratch_dir("runtime-no-cuda");
     let run_dir = root.join("run");
     let smoke = workspace_root().join("deploy/configs/smoke.toml");
-    let out = Command::new(workspace_root().join("deploy/run_local.sh"))
-        .args(["--actors", "1", "--config", smoke.to_str().unwrap(), "--run-dir", run_dir.to_str().unwrap()])
-        .args(["--device", "cuda:1"])
-        .env("PEDNAV_SKIP_BUILD", "1")
-        .env("PEDNAV_BIN_DIR", bin_dir())
-        .output()
-        .unwrap();
-    assert!(!out.status.success());
-    let err = String::from_utf8_lossy(&out.stderr);
+    let err = refused_launch(&smoke, &run_dir, &["--device", "cuda:1"]);
     assert!(err.contains("cuda:1") && err.contains("--device") && err.contains("build_cuda.sh"), "{err}");
-    assert!(!run_dir.exists(), "nothing was created");
 
     let config = root.join("gpu-actors.toml");
     let text = std::fs::read_to_string(&smoke).unwrap();
     std::fs::write(&config, format!("{text}actor_device = \"cuda\"\n")).unwrap();
-    let out = Command::new(bin_dir().join("pednav-run")).args(["check", config.to_str().unwrap()]).output().unwrap();
-    let err = String::from_utf8_lossy(&out.stderr);
-    assert!(!out.status.success() && err.contains("runtime.actor_device") && err.contains("build_cuda.sh"), "{err}");
+    let err = refused_check(&config);
+    assert!(err.contains("runtime.actor_device") && err.contains("build_cuda.sh"), "{err}");
 
     std::fs::write(&config, format!("{text}device = \"gpu\"\n")).unwrap();
-    let out = Command::new(bin_dir().join("pednav-run")).args(["check", config.to_str().unwrap()]).output().unwrap();
-    let err = String::from_utf8_lossy(&out.stderr);
-    assert!(!out.status.success() && err.contains("gpu") && err.contains("cuda:N"), "{err}");
+    let err = refused_check(&config);
+    assert!(err.contains("gpu") && err.contains("cuda:N"), "{err}");
 }
 
 #[test]

@@ -72,8 +72,7 @@ pub fn load_policy(run_dir: &Path, device: &Device) -> Result<(RunConfig, DsacNe
     let cfg = RunConfig::load(&run_dir.join("config.toml"))
         .map_err(|e| ExperimentError::file(&run_dir.join("config.toml"), e))?;
     let ckpt = run_dir.join("checkpoints").join("learner");
-    let mut dsac =
-        Dsac::new(&cfg.dsac, &cfg.nets, device, cfg.seed).map_err(|e| ExperimentError::file(&ckpt, e))?;
+    let mut dsac = Dsac::new(&cfg.dsac, &cfg.nets, device, cfg.seed).map_err(|e| ExperimentError::file(&ckpt, e))?;
     load_checkpoint(&ckpt, &mut dsac).map_err(|e| ExperimentError::file(&ckpt, e))?;
     Ok((cfg, dsac.nets))
 }

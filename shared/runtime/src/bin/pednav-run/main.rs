@@ -24,8 +24,8 @@ use anyhow::{Context, Result, bail};
 
 mod bench;
 use clap::{Parser, Subcommand};
-use pednav_runtime::messages::process_kind;
 use pednav_nets::DeviceSpec;
+use pednav_runtime::messages::process_kind;
 use pednav_runtime::{Ipc, RunConfig, RunDir, StopFlag, run_prefix};
 
 #[derive(Parser)]
@@ -84,8 +84,9 @@ fn main() -> Result<()> {
         Cmd::Bench(b) => bench::run(b),
         Cmd::Check { config } => {
             let cfg = RunConfig::load(&config)?;
-            check_devices(cfg.runtime.device, cfg.runtime.actor_device)
-                .with_context(|| format!("{}: the config is valid, but its devices cannot be used", config.display()))?;
+            check_devices(cfg.runtime.device, cfg.runtime.actor_device).with_context(|| {
+                format!("{}: the config is valid, but its devices cannot be used", config.display())
+            })?;
             print!("{}", cfg.to_toml());
             eprintln!("{}: valid", config.display());
             Ok(())
