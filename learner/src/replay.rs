@@ -50,6 +50,28 @@ impl Default for ReplayConfig {
     }
 }
 
+impl ReplayConfig {
+    /// The rules [`DualReplay::new`] applies, for frames of `kind` and observation
+    /// windows of `history` frames (the run config's check calls this too, so a
+    /// config the learner would refuse never starts a run).
+    pub fn validate(&self, kind: FrameKind, history: usize) -> Result<()> {
+        if history == 0 || (matches!(kind, FrameKind::State { .. }) && history != 1) {
+            return Err(config_error("history", history, "must be ≥ 1 (exactly 1 for state observations)"));
+        }
+        if self.nonterminal_capacity < history + 2 {
+            return Err(config_error(
+                "nonterminal_capacity",
+                self.nonterminal_capacity,
+                format!("must hold at least N_h + 2 = {} steps", history + 2),
+            ));
+        }
+        if self.terminal_capacity == 0 {
+            return Err(config_error("terminal_capacity", self.terminal_capacity, "must be positive"));
+        }
+        Ok(())
+    }
+}
+
 /// What one stored observation frame is.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum FrameKind {
@@ -250,19 +272,7 @@ pub struct DualReplay {
 impl DualReplay {
     /// Empty pools for frames of `kind` and observation windows of `history` frames.
     pub fn new(cfg: &ReplayConfig, kind: FrameKind, history: usize, device: &Device) -> Result<DualReplay> {
-        if cfg.nonterminal_capacity < history + 2 {
-            return Err(config_error(
-                "nonterminal_capacity",
-                cfg.nonterminal_capacity,
-                format!("must hold at least N_h + 2 = {} steps", history + 2),
-            ));
-        }
-        if cfg.terminal_capacity == 0 {
-            return Err(config_error("terminal_capacity", cfg.terminal_capacity, "must be positive"));
-        }
-        if history == 0 || (matches!(kind, FrameKind::State { .. }) && history != 1) {
-            return Err(config_error("history", history, "must be ≥ 1 (exactly 1 for state observations)"));
-        }
+        cfg.validate(kind, history)?;
         Ok(DualReplay {
             kind,
             frame_len: kind.len(),

@@ -25,7 +25,6 @@ use pednav_nets::init_cpu_runtime;
 use pednav_runtime::ipc::{StepSample, StepSubscriber, receive_step_round};
 use pednav_runtime::messages::{Heartbeat, StepHeader, WeightsHeader, process_kind, step_flags};
 use pednav_runtime::{Ipc, Metrics, RunDir, StopFlag, run_prefix, weights};
-use pednav_sim::ObsMode;
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 
@@ -158,10 +157,7 @@ fn main() -> Result<()> {
         resumed_from = Some(dsac.updates);
         tracing::info!(updates = dsac.updates, inserted = limiter.inserted, "resumed from checkpoint");
     }
-    let kind = match cfg.sim.obs_mode {
-        ObsMode::Pixels => FrameKind::Pixels { size: cfg.sim.image_size as usize },
-        ObsMode::StateDebug => FrameKind::State { dim: cfg.nets.state_dim },
-    };
+    let kind = cfg.frame_kind();
     let replay = DualReplay::new(&cfg.replay, kind, cfg.nets.history, &device)?;
     let mut l = Learner {
         dsac,

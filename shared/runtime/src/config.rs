@@ -9,7 +9,7 @@
 use std::path::{Path, PathBuf};
 
 use pednav_curriculum::CurriculumConfig;
-use pednav_learner::{DsacConfig, ReplayConfig};
+use pednav_learner::{DsacConfig, FrameKind, ReplayConfig};
 use pednav_nets::{DeviceSpec, EncoderKind, NetsConfig};
 use pednav_sim::{ObsMode, STATE_OBS_DIM, Scene, SimConfig};
 use serde::{Deserialize, Serialize};
@@ -181,6 +181,11 @@ impl RunConfig {
                 }
             }
         }
+        // The replay's own rules (history vs observation kind, capacities), exactly as
+        // the learner applies them when it builds the replay.
+        self.replay
+            .validate(self.frame_kind(), self.nets.history)
+            .map_err(|e| section("replay (with nets.history)", e.to_string()))?;
         let r = &self.runtime;
         if r.envs_per_actor == 0 || r.envs_per_actor > 4096 {
             return bad("runtime.envs_per_actor", r.envs_per_actor.to_string(), "must be 1 … 4096");
@@ -239,6 +244,15 @@ impl RunConfig {
         Ok(())
     }
 
+    /// What the learner's replay stores per step: frames of `sim.image_size`² pixels,
+    /// or state vectors of `nets.state_dim` values.
+    pub fn frame_kind(&self) -> FrameKind {
+        match self.sim.obs_mode {
+            ObsMode::Pixels => FrameKind::Pixels { size: self.sim.image_size as usize },
+            ObsMode::StateDebug => FrameKind::State { dim: self.nets.state_dim },
+        }
+    }
+
     /// Bytes of one observation record (frame or state vector).
     pub fn observation_bytes(&self) -> usize {
         match self.sim.obs_mode {
@@ -281,6 +295,16 @@ mod tests {
         assert!(e.contains("dsac.warmup") && e.contains("replay.nonterminal_capacity"), "{e}");
         let cfg = RunConfig { scene: Some("/nonexistent/scene.toml".into()), ..RunConfig::default() };
         assert!(cfg.validate("x").unwrap_err().to_string().contains("/nonexistent/scene.toml"));
+        // A rule only the learner's replay knew: state observations have no history.
+        let mut cfg = RunConfig::default();
+        cfg.sim.obs_mode = ObsMode::StateDebug;
+        cfg.nets.encoder = EncoderKind::Mlp;
+        cfg.nets.state_dim = STATE_OBS_DIM;
+        cfg.nets.history = 1;
+        cfg.validate("x").unwrap();
+        cfg.nets.history = 8;
+        let e = cfg.validate("x").unwrap_err().to_string();
+        assert!(e.contains("nets.history") && e.contains("history") && e.contains("8") && e.contains("state"), "{e}");
     }
 
     #[test]

@@ -11,10 +11,9 @@ use std::path::PathBuf;
 
 use anyhow::{Context, Result, bail};
 use clap::Parser;
-use pednav_learner::{FrameKind, compare_update};
+use pednav_learner::compare_update;
 use pednav_nets::{DeviceSpec, init_cpu_runtime};
 use pednav_runtime::RunConfig;
-use pednav_sim::ObsMode;
 
 #[derive(Parser)]
 #[command(version, about = "Compare one DSAC update on the CPU and on another device")]
@@ -42,11 +41,7 @@ fn main() -> Result<()> {
         cfg.dsac.batch_size = b;
     }
     let device = cli.device.open()?;
-    let kind = match cfg.sim.obs_mode {
-        ObsMode::Pixels => FrameKind::Pixels { size: cfg.sim.image_size as usize },
-        ObsMode::StateDebug => FrameKind::State { dim: cfg.nets.state_dim },
-    };
-    let c = compare_update(&cfg.dsac, &cfg.nets, kind, &candle_core::Device::Cpu, &device, cli.seed)
+    let c = compare_update(&cfg.dsac, &cfg.nets, cfg.frame_kind(), &candle_core::Device::Cpu, &device, cli.seed)
         .with_context(|| format!("one update on cpu and on {}", cli.device))?;
     println!("config: {} (batch {}), cpu vs {}", cli.config.display(), cfg.dsac.batch_size, cli.device);
     println!("| loss | cpu | {} |", cli.device);
