@@ -1,11 +1,13 @@
 //! Running evaluation episodes: a batch of environments stepped together, each
 //! taking the next task of the list when its episode ends.
 //!
-//! Invariant: with a deterministic policy (the default: the policy's mode,
-//! tanh(μ)), an episode's result depends only on its task — not on the batch
-//! size, the order, or how the list was split across processes — because the
-//! simulator is deterministic given the task's seed and the learned policy's
-//! streaming cache equals the full recompute per environment.
+//! Invariant: an episode's result depends only on its task — not on the order or
+//! how the list was split across processes — up to floating-point rounding: the
+//! simulator is deterministic given the task's seed, the learned policy's streaming
+//! cache equals the full recompute per environment, and a sampling policy draws its
+//! noise from a generator of its own environment, seeded from the task's seed when
+//! the episode starts. (The policy's matrix products are blocked by batch size, so
+//! another `--envs` can round differently, and a long episode can amplify that.)
 
 use std::collections::BTreeMap;
 use std::path::Path;
@@ -42,10 +44,20 @@ pub enum PolicyKind {
 // One per evaluator, so the size of the learned variant does not matter.
 #[allow(clippy::large_enum_variant)]
 enum Policy {
-    Learned { nets: DsacNets, cfg: NetsConfig, stream: PolicyStream, deterministic: bool, rng: ChaCha8Rng },
+    Learned {
+        nets: DsacNets,
+        cfg: NetsConfig,
+        stream: PolicyStream,
+        deterministic: bool,
+        /// One noise generator per environment, reseeded from each task's seed.
+        noise: Vec<ChaCha8Rng>,
+    },
     Random(ChaCha8Rng),
     Oracle(Box<Oracle>),
 }
+
+/// Stream of a task's seed that a sampling policy's noise comes from.
+const POLICY_NOISE_STREAM: u64 = 11;
 
 /// Evaluates tasks with one policy on a batch of environments.
 pub struct Evaluator {
@@ -107,7 +119,7 @@ impl Evaluator {
                     nets,
                     cfg,
                     deterministic,
-                    rng: ChaCha8Rng::seed_from_u64(seed),
+                    noise: (0..envs).map(|e| ChaCha8Rng::seed_from_u64(seed ^ e as u64)).collect(),
                 }
             }
             PolicyKind::Random => Policy::Random(ChaCha8Rng::seed_from_u64(seed)),
@@ -125,6 +137,11 @@ impl Evaluator {
     fn start(&mut self, e: usize, task: EvalTask, filler: bool, running: &mut [Option<Running>]) -> Result<()> {
         let pose = task.pose();
         self.envs.reset(e, pose, task.seed)?;
+        if let Policy::Learned { noise, .. } = &mut self.policy {
+            // Its own stream of the task's seed (the simulator draws from the seed too).
+            noise[e] = ChaCha8Rng::seed_from_u64(task.seed);
+            noise[e].set_stream(POLICY_NOISE_STREAM);
+        }
         running[e] =
             Some(Running { task, filler, ret: 0.0, discount: 1.0, steps: 0, trajectory: vec![[pose.x, pose.y]] });
         Ok(())
@@ -150,7 +167,7 @@ impl Evaluator {
                 .map(|_| [rng.random_range(-1.0..1.0), rng.random_range(-1.0..1.0), rng.random_range(-1.0..1.0)])
                 .collect(),
             Policy::Oracle(o) => (0..m).map(|e| o.best_action(&self.world, self.envs.pedestrian(e))).collect(),
-            Policy::Learned { nets, cfg, stream, deterministic, rng } => {
+            Policy::Learned { nets, cfg, stream, deterministic, noise } => {
                 let all: Vec<usize> = (0..m).collect();
                 let f = if self.world.config.obs_mode == ObsMode::Pixels {
                     stream.features(nets.acting_encoder(), &all)?
@@ -162,8 +179,11 @@ impl Evaluator {
                 let a = if *deterministic {
                     dist.mode()?
                 } else {
-                    let eps = pednav_nets::heads::standard_normal(rng, m, &self.device)?;
-                    dist.sample(&eps)?.action
+                    let per_env = noise
+                        .iter_mut()
+                        .map(|rng| pednav_nets::heads::standard_normal(rng, 1, &self.device))
+                        .collect::<std::result::Result<Vec<_>, _>>()?;
+                    dist.sample(&Tensor::cat(&per_env, 0)?)?.action
                 };
                 a.to_vec2::<f32>()?.into_iter().map(|v| [v[0], v[1], v[2]]).collect()
             }

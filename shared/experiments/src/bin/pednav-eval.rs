@@ -34,6 +34,24 @@ enum PolicyArg {
     Oracle,
 }
 
+/// How a learned policy picks its actions in evaluation.
+#[derive(Clone, Copy, PartialEq, Eq, ValueEnum, Debug)]
+enum ActionMode {
+    /// Sample from π (the paper's protocol, §V-C: 10 sampled trajectories per pose).
+    Sample,
+    /// The policy's mode tanh(μ): the runs of a pose are then identical.
+    Mode,
+}
+
+impl ActionMode {
+    fn describe(self) -> &'static str {
+        match self {
+            ActionMode::Sample => "actions sampled from π",
+            ActionMode::Mode => "actions = mode tanh(μ)",
+        }
+    }
+}
+
 #[derive(Parser, Debug)]
 #[command(version, about = "Validation protocol of the paper (§V-C) on a pednav checkpoint: Table III, CSV, Fig. 5")]
 struct Cli {
@@ -43,9 +61,9 @@ struct Cli {
     /// Which policy acts.
     #[arg(long, value_enum, default_value_t = PolicyArg::Learned)]
     policy: PolicyArg,
-    /// Sample actions instead of acting with the policy's mode tanh(μ).
-    #[arg(long)]
-    stochastic: bool,
+    /// How the learned policy acts: `sample` (the paper's protocol) or its `mode` tanh(μ).
+    #[arg(long, value_enum, default_value_t = ActionMode::Sample)]
+    mode: ActionMode,
     /// Runs per (point, yaw). Paper: 10.
     #[arg(long, default_value_t = protocol::RUNS)]
     runs: u32,
@@ -90,7 +108,7 @@ struct Cli {
 
 fn kind(cli: &Cli) -> PolicyKind {
     match cli.policy {
-        PolicyArg::Learned => PolicyKind::Learned { deterministic: !cli.stochastic },
+        PolicyArg::Learned => PolicyKind::Learned { deterministic: cli.mode == ActionMode::Mode },
         PolicyArg::Random => PolicyKind::Random,
         PolicyArg::Oracle => PolicyKind::Oracle,
     }
@@ -157,7 +175,7 @@ fn main() -> Result<()> {
         },
         cli.runs,
         cli.t_max,
-        if cli.stochastic { " (sampled)" } else { "" },
+        if cli.policy == PolicyArg::Learned { format!(" ({})", cli.mode.describe()) } else { String::new() },
         cli.workers,
         cli.envs
     );
@@ -190,8 +208,9 @@ fn main() -> Result<()> {
     };
     let t = table::aggregate(&results, &oracle);
     let title = format!(
-        "{} — {policy_name} policy, {} episodes, T_max {}",
+        "{} — {policy_name} policy{}, {} episodes, T_max {}",
         cli.run_dir.as_ref().map_or("no run".into(), |d| d.display().to_string()),
+        if cli.policy == PolicyArg::Learned { format!(" ({})", cli.mode.describe()) } else { String::new() },
         results.len(),
         cli.t_max
     );
@@ -243,9 +262,7 @@ fn run_workers(cli: &Cli, out: &Path) -> Result<Vec<EpisodeResult>> {
         if let Some(s) = &cli.starts {
             cmd.arg("--starts").arg(s);
         }
-        if cli.stochastic {
-            cmd.arg("--stochastic");
-        }
+        cmd.args(["--mode", &format!("{:?}", cli.mode).to_lowercase()]);
         cmd.args(["--policy", &format!("{:?}", cli.policy).to_lowercase()])
             .args(["--runs", &cli.runs.to_string(), "--t-max", &cli.t_max.to_string()])
             .args(["--envs", &cli.envs.to_string(), "--seed", &cli.seed.to_string()])
