@@ -17,9 +17,15 @@
 # Environment: CUDA_COMPUTE_CAP (default 90: H100/H200; 80 for A100, 89 for L4/4090)
 # picks the GPU generation candle's kernels are compiled for; CUDARC_CUDA_VERSION
 # (default 13000) the CUDA API level cudarc binds (13.0 runs on any CUDA 13 driver;
-# cudarc 0.19 rejects nvcc 13.5's own version string). The binaries load the CUDA
-# driver library at run time, so they start on machines without one and report
-# `--device cuda` as unavailable there.
+# cudarc 0.19 rejects nvcc 13.5's own version string).
+#
+# Linking: candle links the CUDA libraries dynamically (libcuda, libcublas,
+# libcublasLt, libcurand, libnvrtc, libcudart). A machine without a GPU has none of
+# them but libcudart (from PyPI), so the build links against stubs generated from the
+# symbols cudarc imports, under the real libraries' sonames (what NVIDIA's own stub
+# libraries are for). At run time the binaries need the real ones: the GPU driver's
+# libcuda.so.1 and CUDA 13's libcublas/libcurand/libnvrtc/libcudart (PyTorch's CUDA
+# wheels carry them; deploy/gpu_check.sh puts them on LD_LIBRARY_PATH).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 mode=build
@@ -27,7 +33,7 @@ case "${1:-}" in
     --check) mode=check ;;
     --bins) mode=bins ;;
     "") ;;
-    -h|--help) sed -n '2,23p' "$0" | sed 's/^# \{0,1\}//'; exit 0 ;;
+    -h|--help) sed -n '2,/^set -euo/p' "$0" | sed '$d' | sed 's/^# \{0,1\}//'; exit 0 ;;
     *) echo "build_cuda.sh: unknown argument '$1' (try --help)" >&2; exit 2 ;;
 esac
 
@@ -65,6 +71,28 @@ if [ "$mode" = check ]; then
     echo "build_cuda.sh: CUDA build checks ($(( $(date +%s) - start )) s)" >&2
     exit 0
 fi
+
+# Link-time stubs (see the header): one per library, every function cudarc imports
+# from it, under the library's soname, next to libcudart in the toolkit's lib folder
+# (candle's build script puts that folder on the link path).
+cargo build --release --locked --target-dir "$target" "${features[@]}" -p pednav-nets
+cudarc_lib=$(ls -t "$target"/release/deps/libcudarc-*.rlib | head -1)
+lib="$root/lib"
+stub_src="$(mktemp -d)"
+make_stub() { # name soname symbol-regex [exclude-regex]
+    nm --undefined-only "$cudarc_lib" 2>/dev/null | awk '$1 == "U" {print $2}' | grep -E "$3" \
+        | { if [ -n "${4:-}" ]; then grep -vE "$4"; else cat; fi; } | sort -u \
+        | sed 's/.*/void &(void) {}/' > "$stub_src/$1.c"
+    [ -s "$stub_src/$1.c" ] || { echo "error: no $1 symbols found in $cudarc_lib" >&2; exit 1; }
+    cc -shared -fPIC -Wl,-soname,"$2" -o "$lib/lib$1.so" "$stub_src/$1.c"
+}
+make_stub cuda libcuda.so.1 '^cu[A-Z]'
+make_stub cublas libcublas.so.13 '^cublas' '^cublasLt'
+make_stub cublasLt libcublasLt.so.13 '^cublasLt'
+make_stub curand libcurand.so.10 '^curand'
+make_stub nvrtc libnvrtc.so.13 '^nvrtc'
+ln -sf libcudart.so.13 "$lib/libcudart.so"
+rm -rf "$stub_src"
 
 bins=(pednav-run pednav-learner pednav-device-check pednav-actor pednav-curriculum pednav-eval)
 cargo build --release --locked --target-dir "$target" "${features[@]}" \

@@ -41,6 +41,29 @@ for b in pednav-device-check dsac_update pednav-run pednav-learner pednav-actor 
     [ -x "$bins/$b" ] || { echo "error: $bins/$b missing (rebuild with deploy/build_cuda.sh)" >&2; exit 1; }
 done
 
+# The CUDA libraries the binaries link (libcublas, libcublasLt, libcurand, libnvrtc,
+# libcudart; libcuda.so.1 comes with the driver): from PyTorch's CUDA wheels when the
+# system's library path has none.
+if ! ldconfig -p 2>/dev/null | grep -q 'libcublas\.so\.13'; then
+    wheel_libs=$(python3 - 2>/dev/null <<'PY'
+import glob, os
+try:
+    import nvidia
+except ImportError:
+    raise SystemExit
+print(":".join(sorted({os.path.dirname(p) for base in nvidia.__path__
+                       for p in glob.glob(os.path.join(base, "**", "lib*.so*"), recursive=True)})))
+PY
+)
+    [ -n "$wheel_libs" ] && export LD_LIBRARY_PATH="$wheel_libs${LD_LIBRARY_PATH:+:$LD_LIBRARY_PATH}"
+fi
+missing=$(ldd "$bins/pednav-device-check" 2>/dev/null | grep 'not found' || true)
+if [ -n "$missing" ]; then
+    echo "error: the CUDA binaries cannot find these libraries (install the CUDA 13 runtime, or a PyTorch with CUDA 13 wheels):" >&2
+    echo "$missing" >&2
+    exit 1
+fi
+
 log "1. GPU"
 nvidia-smi --query-gpu=name,memory.total,driver_version --format=csv 2>&1 | tee -a "$out/summary.txt"
 grep -m1 'model name' /proc/cpuinfo | tee -a "$out/summary.txt"

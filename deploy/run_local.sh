@@ -32,7 +32,7 @@ for a in "${args[@]}"; do
         --run-dir=*) run_dir="${a#--run-dir=}" ;;
         --device=cuda*|--actor-device=cuda*) cuda=1 ;;
         -h|--help)
-            sed -n '2,22p' "$0" | sed 's/^# \{0,1\}//'
+            sed -n '2,/^set -euo/p' "$0" | sed '$d' | sed 's/^# \{0,1\}//'
             exit 0 ;;
     esac
     [[ "$prev" == "--run-dir" ]] && run_dir="$a"

@@ -326,16 +326,17 @@ fn main() -> Result<()> {
             let rate = (counters.steps - last_steps) as f64 / secs;
             last_steps = counters.steps;
             let recent = mean(&counters.recent_returns);
-            metrics.log(
+            metrics.log_optional(
                 counters.steps,
                 &[
-                    ("steps_per_s", rate),
-                    ("episodes", counters.episodes as f64),
-                    ("policy_version", version as f64),
-                    ("recent_return", recent as f64),
-                    ("inference_ms_per_step", 1e3 * t_infer / n),
-                    ("sim_ms_per_step", 1e3 * t_sim / n),
-                    ("render_send_ms_per_step", 1e3 * t_send / n),
+                    ("steps_per_s", Some(rate)),
+                    ("episodes", Some(counters.episodes as f64)),
+                    ("policy_version", Some(version as f64)),
+                    // No return before the first episode ends.
+                    ("recent_return", Some(recent as f64).filter(|r| r.is_finite())),
+                    ("inference_ms_per_step", Some(1e3 * t_infer / n)),
+                    ("sim_ms_per_step", Some(1e3 * t_sim / n)),
+                    ("render_send_ms_per_step", Some(1e3 * t_send / n)),
                 ],
             )?;
             (t_infer, t_sim, t_send) = (0.0, 0.0, 0.0);

@@ -261,24 +261,22 @@ fn serve(run_dir: &Path) -> Result<()> {
         if last_log.elapsed() >= log_every {
             last_log = Instant::now();
             let s = curriculum.scheduler();
+            // Statistics that do not exist yet (no episode, no fit) are not written.
             let mean_return =
-                if recent.is_empty() { f64::NAN } else { recent.iter().sum::<f32>() as f64 / recent.len() as f64 };
-            let success = if successes.is_empty() {
-                f64::NAN
-            } else {
-                successes.iter().filter(|&&s| s).count() as f64 / successes.len() as f64
-            };
-            let count = |c: Category| proposed.get(category_name(c)).copied().unwrap_or(0) as f64;
+                (!recent.is_empty()).then(|| recent.iter().sum::<f32>() as f64 / recent.len() as f64);
+            let success = (!successes.is_empty())
+                .then(|| successes.iter().filter(|&&s| s).count() as f64 / successes.len() as f64);
+            let count = |c: Category| Some(proposed.get(category_name(c)).copied().unwrap_or(0) as f64);
             let values = [
-                ("episodes", curriculum.episodes() as f64),
-                ("phase_acl", if s.in_acl_phase() { 1.0 } else { 0.0 }),
-                ("t_c", s.t_c() as f64),
-                ("first_task_mean_return", s.gate().mean().map_or(f64::NAN, |m| m as f64)),
+                ("episodes", Some(curriculum.episodes() as f64)),
+                ("phase_acl", Some(if s.in_acl_phase() { 1.0 } else { 0.0 })),
+                ("t_c", Some(s.t_c() as f64)),
+                ("first_task_mean_return", s.gate().mean().map(|m| m as f64)),
                 ("mean_return_100", mean_return),
                 ("success_rate_100", success),
-                ("mu", last_fit.map_or(f64::NAN, |f| f.mu as f64)),
-                ("sigma", last_fit.map_or(f64::NAN, |f| f.sigma as f64)),
-                ("fr_loss", last_loss.map_or(f64::NAN, |l| l as f64)),
+                ("mu", last_fit.map(|f| f.mu as f64)),
+                ("sigma", last_fit.map(|f| f.sigma as f64)),
+                ("fr_loss", last_loss.map(|l| l as f64)),
                 ("n_first", count(Category::First)),
                 ("n_fixed", count(Category::Fixed)),
                 ("n_easy", count(Category::Easy)),
@@ -286,7 +284,7 @@ fn serve(run_dir: &Path) -> Result<()> {
                 ("n_random", count(Category::Random)),
                 ("n_hard", count(Category::Hard)),
             ];
-            metrics.log(curriculum.episodes(), &values)?;
+            metrics.log_optional(curriculum.episodes(), &values)?;
             tracing::info!(
                 episodes = curriculum.episodes(),
                 acl = s.in_acl_phase(),
@@ -304,7 +302,7 @@ fn serve(run_dir: &Path) -> Result<()> {
                 phase: s.in_acl_phase() as u32,
                 steps: s.t_c(),
                 count: curriculum.episodes(),
-                recent_return: mean_return as f32,
+                recent_return: mean_return.map_or(f32::NAN, |m| m as f32),
                 ..Heartbeat::default()
             };
             let _ = heartbeat.send_copy(hb);

@@ -48,6 +48,14 @@ impl Metrics {
     /// Write one row: `step` plus named values. The first row fixes the columns;
     /// later rows must name the same values (missing ones are left empty).
     pub fn log(&mut self, step: u64, values: &[(&str, f64)]) -> Result<()> {
+        let values: Vec<(&str, Option<f64>)> = values.iter().map(|&(k, v)| (k, Some(v))).collect();
+        self.log_optional(step, &values)
+    }
+
+    /// [`Metrics::log`] with values that may not exist yet (a statistic before its
+    /// first sample, a fit before the first fit): a `None` still names its column, its
+    /// CSV cell stays empty and TensorBoard gets no point — never a placeholder NaN.
+    pub fn log_optional(&mut self, step: u64, values: &[(&str, Option<f64>)]) -> Result<()> {
         if self.columns.is_empty() {
             self.columns =
                 std::iter::once("step".to_string()).chain(values.iter().map(|(k, _)| k.to_string())).collect();
@@ -58,12 +66,14 @@ impl Metrics {
             if c == "step" {
                 row.push(step.to_string());
             } else {
-                row.push(values.iter().find(|(k, _)| k == c).map(|(_, v)| format!("{v}")).unwrap_or_default());
+                let value = values.iter().find(|(k, _)| k == c).and_then(|(_, v)| *v);
+                row.push(value.map(|v| format!("{v}")).unwrap_or_default());
             }
         }
         writeln!(self.csv, "{}", row.join(",")).map_err(|e| RuntimeError::file(&self.csv_path, e))?;
         self.csv.flush().map_err(|e| RuntimeError::file(&self.csv_path, e))?;
-        self.tb.scalars(step, values)
+        let present: Vec<(&str, f64)> = values.iter().filter_map(|&(k, v)| Some((k, v?))).collect();
+        self.tb.scalars(step, &present)
     }
 }
 
@@ -194,8 +204,18 @@ mod tests {
         drop(m);
         let mut m = Metrics::open(&dir, &dir.join("tb"), "x").unwrap();
         m.log(2, &[("b", 3.0)]).unwrap();
+        m.log_optional(3, &[("a", None), ("b", Some(4.0))]).unwrap();
         let text = std::fs::read_to_string(dir.join("x.csv")).unwrap();
-        assert_eq!(text, "step,a,b\n1,1,2\n2,,3\n");
+        assert_eq!(text, "step,a,b\n1,1,2\n2,,3\n3,,4\n");
+        let _ = std::fs::remove_dir_all(&dir);
+        // A first row whose values do not exist yet still fixes every column.
+        std::fs::create_dir_all(&dir).unwrap();
+        let mut m = Metrics::open(&dir, &dir.join("tb"), "y").unwrap();
+        m.log_optional(1, &[("fit", None), ("n", Some(1.0))]).unwrap();
+        m.log_optional(2, &[("fit", Some(0.5)), ("n", Some(2.0))]).unwrap();
+        let text = std::fs::read_to_string(dir.join("y.csv")).unwrap();
+        assert_eq!(text, "step,fit,n\n1,,1\n2,0.5,2\n");
+        assert!(!text.contains("NaN"));
         let _ = std::fs::remove_dir_all(&dir);
     }
 }
