@@ -262,8 +262,7 @@ fn serve(run_dir: &Path) -> Result<()> {
             last_log = Instant::now();
             let s = curriculum.scheduler();
             // Statistics that do not exist yet (no episode, no fit) are not written.
-            let mean_return =
-                (!recent.is_empty()).then(|| recent.iter().sum::<f32>() as f64 / recent.len() as f64);
+            let mean_return = (!recent.is_empty()).then(|| recent.iter().sum::<f32>() as f64 / recent.len() as f64);
             let success = (!successes.is_empty())
                 .then(|| successes.iter().filter(|&&s| s).count() as f64 / successes.len() as f64);
             let count = |c: Category| Some(proposed.get(category_name(c)).copied().unwrap_or(0) as f64);

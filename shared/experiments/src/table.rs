@@ -4,7 +4,9 @@
 //! (8 yaws × runs; std is the population standard deviation, numpy's default),
 //! the success rate, and the oracle's optimal return averaged over the same start
 //! yaws. Avg.Int and Avg.Ext are the means of the per-point means over points
-//! 0–7 and 8–13, as in the paper's Table III.
+//! 0–7 and 8–13, as in the paper's Table III. For a start list of the user's
+//! (`pednav-eval --starts`) the rows are the file's starts instead, and the table
+//! gives the mean over them ([`Rows::StartList`]): Avg.Int/Ext would mean nothing.
 
 use std::collections::BTreeMap;
 use std::fmt::Write as _;
@@ -51,11 +53,24 @@ pub struct PointRow {
     pub oracle: Option<f64>,
 }
 
+/// What a table's rows are.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+pub enum Rows {
+    /// The paper's 14 validation points (Avg.Int over 0–7, Avg.Ext over 8–13).
+    ValidationPoints,
+    /// The starts of a `--starts` file, by their row in the file (0-based).
+    StartList,
+}
+
 /// The aggregated table.
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct Table {
+    /// What the rows are.
+    pub kind: Rows,
     /// Rows by point.
     pub rows: Vec<PointRow>,
+    /// Mean of the per-row means (every row).
+    pub mean_all: Option<f64>,
     /// Mean of the per-point means of points 0–7 (None without such points).
     pub avg_int: Option<f64>,
     /// Mean of the per-point means of points ≥ 8.
@@ -67,7 +82,7 @@ fn mean(v: &[f64]) -> f64 {
 }
 
 /// Aggregate results; `oracle` maps point → optimal return for its starts.
-pub fn aggregate(results: &[EpisodeResult], oracle: &BTreeMap<u32, f64>) -> Table {
+pub fn aggregate(results: &[EpisodeResult], oracle: &BTreeMap<u32, f64>, kind: Rows) -> Table {
     let mut by_point: BTreeMap<u32, Vec<&EpisodeResult>> = BTreeMap::new();
     for r in results {
         by_point.entry(r.point).or_default().push(r);
@@ -92,7 +107,11 @@ pub fn aggregate(results: &[EpisodeResult], oracle: &BTreeMap<u32, f64>) -> Tabl
         let v: Vec<f64> = rows.iter().filter(|r| f(r.point)).map(|r| r.mean).collect();
         (!v.is_empty()).then(|| mean(&v))
     };
-    Table { avg_int: avg(&|p| INTERIOR.contains(&p)), avg_ext: avg(&|p| !INTERIOR.contains(&p)), rows }
+    let (avg_int, avg_ext) = match kind {
+        Rows::ValidationPoints => (avg(&|p| INTERIOR.contains(&p)), avg(&|p| !INTERIOR.contains(&p))),
+        Rows::StartList => (None, None),
+    };
+    Table { kind, mean_all: avg(&|_| true), avg_int, avg_ext, rows }
 }
 
 impl Table {
@@ -101,10 +120,14 @@ impl Table {
     pub fn render(&self, title: &str) -> String {
         let mut s = String::new();
         let _ = writeln!(s, "{title}");
+        let row_name = match self.kind {
+            Rows::ValidationPoints => "point",
+            Rows::StartList => "start",
+        };
         let _ = writeln!(
             s,
             "{:>5} | {:>16} | {:>7} | {:>7} | {:>8}",
-            "point", "return mean ± std", "success", "oracle", "episodes"
+            row_name, "return mean ± std", "success", "oracle", "episodes"
         );
         let _ = writeln!(s, "{}", "-".repeat(56));
         for r in &self.rows {
@@ -121,20 +144,46 @@ impl Table {
         }
         let _ = writeln!(s, "{}", "-".repeat(56));
         let f = |v: Option<f64>| v.map_or("—".to_string(), |v| format!("{v:.1}"));
-        let _ = writeln!(s, "Avg.Int (points 0–7): {}   Avg.Ext (points 8–13): {}", f(self.avg_int), f(self.avg_ext));
+        match self.kind {
+            Rows::ValidationPoints => {
+                let _ = writeln!(
+                    s,
+                    "Avg.Int (points 0–7): {}   Avg.Ext (points 8–13): {}",
+                    f(self.avg_int),
+                    f(self.avg_ext)
+                );
+            }
+            Rows::StartList => {
+                let _ = writeln!(
+                    s,
+                    "rows: the starts of the --starts file by row (0-based); mean over them: {}",
+                    f(self.mean_all)
+                );
+            }
+        }
         s
     }
 
     /// Write the table as CSV (one row per point, then Avg.Int and Avg.Ext rows).
     pub fn write_csv(&self, path: &Path) -> Result<()> {
-        let mut s = String::from("point,episodes,mean,std,success_rate,oracle\n");
+        let mut s = match self.kind {
+            Rows::ValidationPoints => String::from("point,episodes,mean,std,success_rate,oracle\n"),
+            Rows::StartList => String::from("start,episodes,mean,std,success_rate,oracle\n"),
+        };
         for r in &self.rows {
             let oracle = r.oracle.map_or(String::new(), |o| format!("{o:.4}"));
             let _ = writeln!(s, "{},{},{:.4},{:.4},{:.4},{oracle}", r.point, r.episodes, r.mean, r.std, r.success_rate);
         }
         let f = |v: Option<f64>| v.map_or(String::new(), |v| format!("{v:.4}"));
-        let _ = writeln!(s, "avg_int,,{},,,", f(self.avg_int));
-        let _ = writeln!(s, "avg_ext,,{},,,", f(self.avg_ext));
+        match self.kind {
+            Rows::ValidationPoints => {
+                let _ = writeln!(s, "avg_int,,{},,,", f(self.avg_int));
+                let _ = writeln!(s, "avg_ext,,{},,,", f(self.avg_ext));
+            }
+            Rows::StartList => {
+                let _ = writeln!(s, "mean,,{},,,", f(self.mean_all));
+            }
+        }
         std::fs::write(path, s).map_err(|e| ExperimentError::file(path, e))
     }
 }
@@ -170,7 +219,7 @@ mod tests {
             r(9, -30.0, false),
         ];
         let oracle = BTreeMap::from([(0, 4.5), (1, -3.0)]);
-        let t = aggregate(&results, &oracle);
+        let t = aggregate(&results, &oracle, Rows::ValidationPoints);
         assert_eq!(t.rows.len(), 3);
         let p0 = &t.rows[0];
         assert_eq!((p0.point, p0.episodes), (0, 3));
@@ -185,5 +234,14 @@ mod tests {
         assert_eq!(t.avg_ext, Some(-30.0));
         let text = t.render("test");
         assert!(text.contains("5.0 ± 2.9") && text.contains("Avg.Int (points 0–7): -5.0"), "{text}");
+        // The same episodes as a start list: no Avg.Int/Ext; mean of the rows (5 − 15 − 30)/3.
+        let t = aggregate(&results, &oracle, Rows::StartList);
+        assert_eq!((t.avg_int, t.avg_ext), (None, None));
+        assert!((t.mean_all.unwrap() + 40.0 / 3.0).abs() < 1e-12);
+        let text = t.render("test");
+        assert!(
+            !text.contains("Avg.Int") && text.contains("start |") && text.contains("mean over them: -13.3"),
+            "{text}"
+        );
     }
 }

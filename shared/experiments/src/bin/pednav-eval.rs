@@ -206,7 +206,8 @@ fn main() -> Result<()> {
         }
         oracle_per_point(&cfg.scene()?, &cfg.sim, gamma, cli.t_max, &starts)?
     };
-    let t = table::aggregate(&results, &oracle);
+    let rows = if cli.starts.is_some() { table::Rows::StartList } else { table::Rows::ValidationPoints };
+    let t = table::aggregate(&results, &oracle, rows);
     let title = format!(
         "{} — {policy_name} policy{}, {} episodes, T_max {}",
         cli.run_dir.as_ref().map_or("no run".into(), |d| d.display().to_string()),
