@@ -78,6 +78,7 @@ struct Counters {
 }
 
 fn main() -> Result<()> {
+    pednav_sim::prepare_headless_env();
     pednav_runtime::init_logging();
     let cli = Cli::parse();
     init_cpu_runtime(Some(1));

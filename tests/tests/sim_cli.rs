@@ -30,6 +30,22 @@ fn view_writes_the_observation_an_enlargement_and_a_large_render() {
     assert!(hi - lo > 120, "a real picture, not a blank: {lo}..{hi}");
 }
 
+/// On a headless machine without `XDG_RUNTIME_DIR`, rendering prints no
+/// window-system noise (libwayland's complaint, once per probe, before the fix).
+#[test]
+fn rendering_without_a_runtime_dir_prints_no_window_system_noise() {
+    let dir = scratch_dir("headless");
+    let out = Command::new(binary("pednav-sim", "shared/sim", "pednav-sim"))
+        .args(["view", "--out", dir.join("v.png").to_str().unwrap()])
+        .env_remove("XDG_RUNTIME_DIR")
+        .env_remove("WAYLAND_DISPLAY")
+        .output()
+        .expect("run pednav-sim");
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "{err}");
+    assert!(!err.contains("XDG_RUNTIME_DIR"), "{err}");
+}
+
 #[test]
 fn map_draws_the_scene_and_the_oracle_path() {
     let dir = scratch_dir("map");

@@ -32,7 +32,7 @@ pub use env::{Env, Info, Observation, PedestrianEnv, StepOutcome, VecEnv};
 pub use error::{Result, SimError};
 pub use pedestrian::{Action, Pedestrian, Transition, command_of};
 pub use region_map::RegionMap;
-pub use render::{BackendChoice, CameraView, Frames, Look, Renderer, RendererConfig};
+pub use render::{BackendChoice, CameraView, Frames, Look, Renderer, RendererConfig, prepare_headless_env};
 pub use scene::{Pose, RegionKind, Scene};
 pub use state_obs::STATE_OBS_DIM;
 pub use world::SimWorld;

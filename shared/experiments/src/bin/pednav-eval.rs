@@ -138,6 +138,7 @@ fn tasks(cli: &Cli, cfg: &RunConfig) -> Result<Vec<EvalTask>> {
 }
 
 fn main() -> Result<()> {
+    pednav_sim::prepare_headless_env();
     pednav_runtime::init_logging();
     let cli = Cli::parse();
     if cli.envs == 0 || cli.workers == 0 {

@@ -132,6 +132,7 @@ enum Policy {
 }
 
 fn main() -> Result<()> {
+    pednav_sim::prepare_headless_env();
     tracing_subscriber::fmt()
         .with_env_filter(
             tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| "warn,wgpu_hal=off".into()),

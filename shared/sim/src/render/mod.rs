@@ -220,6 +220,39 @@ fn device_rank(info: &wgpu::AdapterInfo) -> (u8, u8) {
     (kind, backend)
 }
 
+/// Give the graphics stack a private runtime directory when the environment names
+/// none, so probing for a window system on a headless machine does not print
+/// `error: XDG_RUNTIME_DIR is invalid or not set in the environment.` (libwayland,
+/// loaded by Mesa) for every renderer; with a valid directory and no compositor the
+/// probe fails quietly and real errors still show.
+///
+/// Call it first thing in `main` of a process that renders, before any thread
+/// starts: changing the environment is only sound while no other thread can read it,
+/// so with other threads running it leaves the environment alone. Does nothing when
+/// `XDG_RUNTIME_DIR` already names a directory.
+pub fn prepare_headless_env() {
+    if std::env::var_os("XDG_RUNTIME_DIR").is_some_and(|d| std::path::Path::new(&d).is_dir()) {
+        return;
+    }
+    let single_threaded = std::fs::read_to_string("/proc/self/status")
+        .ok()
+        .and_then(|s| s.lines().find_map(|l| l.strip_prefix("Threads:")).and_then(|v| v.trim().parse::<u32>().ok()))
+        == Some(1);
+    if !single_threaded {
+        tracing::debug!("prepare_headless_env after other threads started: XDG_RUNTIME_DIR left unset");
+        return;
+    }
+    // Safety: getuid has no preconditions.
+    let dir = std::env::temp_dir().join(format!("pednav-runtime-{}", unsafe { libc::getuid() }));
+    use std::os::unix::fs::{DirBuilderExt, PermissionsExt};
+    let made = std::fs::DirBuilder::new().recursive(true).mode(0o700).create(&dir);
+    let private = std::fs::metadata(&dir).is_ok_and(|m| m.is_dir() && m.permissions().mode() & 0o077 == 0);
+    if made.is_ok() && private {
+        // Safety: this is the process's only thread (checked above).
+        unsafe { std::env::set_var("XDG_RUNTIME_DIR", &dir) };
+    }
+}
+
 /// Pick the best adapter for a backend choice.
 fn pick_adapter(choice: BackendChoice) -> Result<wgpu::Adapter, RenderError> {
     let backends = match choice {
