@@ -24,8 +24,12 @@
 # them but libcudart (from PyPI), so the build links against stubs generated from the
 # symbols cudarc imports, under the real libraries' sonames (what NVIDIA's own stub
 # libraries are for). At run time the binaries need the real ones: the GPU driver's
-# libcuda.so.1 and CUDA 13's libcublas/libcurand/libnvrtc/libcudart (PyTorch's CUDA
-# wheels carry them; deploy/gpu_check.sh puts them on LD_LIBRARY_PATH).
+# libcuda.so.1 and CUDA 13's libcublas/libcurand/libnvrtc/libcudart. PyTorch's CUDA 13
+# wheels carry all but libcurand (candle creates a cuRAND generator with every CUDA
+# device), so the tarball carries libcurand.so.10 from PyPI's nvidia-curand, and
+# deploy/gpu_check.sh puts both on LD_LIBRARY_PATH. The tarball is packed with a
+# dictionary larger than one binary, so their shared code and CUDA kernels are
+# stored once (≈ 13 MB for the seven binaries instead of ≈ 48).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 mode=build
@@ -108,7 +112,13 @@ out="$target/bin"
 mkdir -p "$out"
 for b in "${bins[@]}"; do strip -o "$out/$b" "$target/release/$b"; done
 strip -o "$out/dsac_update" "$bench"
-tar -C "$out" -cJf "$target/pednav-cuda.tar.xz" "${bins[@]}" dsac_update
+# The real cuRAND library travels with them (see the header).
+if [ ! -f "$lib/libcurand.so.10" ] || [ -L "$lib/libcurand.so.10" ]; then
+    "$venv/bin/pip" install -q nvidia-curand
+fi
+mkdir -p "$out/lib"
+cp -L "$lib/libcurand.so.10" "$out/lib/"
+tar -C "$out" -cf - "${bins[@]}" dsac_update lib | xz -6 --lzma2=dict=192MiB -T1 > "$target/pednav-cuda.tar.xz"
 # The PyTorch reference travels too (gpu_check.sh compares against it on the GPU).
 if [ -f ../shared/bench/torch_ref/dsac_ref.py ]; then
     mkdir -p "$target/torch_ref" && cp ../shared/bench/torch_ref/dsac_ref.py "$target/torch_ref/"

@@ -57,6 +57,8 @@ PY
 )
     [ -n "$wheel_libs" ] && export LD_LIBRARY_PATH="$wheel_libs${LD_LIBRARY_PATH:+:$LD_LIBRARY_PATH}"
 fi
+# cuRAND travels in the tarball (PyTorch's wheels do not carry it); a system copy wins.
+[ -d "$bins/lib" ] && export LD_LIBRARY_PATH="${LD_LIBRARY_PATH:+$LD_LIBRARY_PATH:}$bins/lib"
 missing=$(ldd "$bins/pednav-device-check" 2>/dev/null | grep 'not found' || true)
 if [ -n "$missing" ]; then
     echo "error: the CUDA binaries cannot find these libraries (install the CUDA 13 runtime, or a PyTorch with CUDA 13 wheels):" >&2
