@@ -103,19 +103,12 @@ fn a_tiny_run_can_be_evaluated_and_plotted() {
 
     // The validation protocol on its checkpoint, over two worker processes, short episodes.
     let out = root.join("eval");
-    let stdout = ok(Command::new(eval_bin()).args([
-        "--run-dir",
-        run.to_str().unwrap(),
-        "--runs",
-        "1",
-        "--t-max",
-        "40",
-        "--workers",
-        "2",
-        "--no-oracle",
-        "--out",
-        out.to_str().unwrap(),
-    ]));
+    // One run per pose, 40-step episodes, no oracle column, into `out`.
+    let short_eval = |out: &Path, extra: &[&str]| {
+        let dirs = ["--run-dir", run.to_str().unwrap(), "--out", out.to_str().unwrap()];
+        ok(Command::new(eval_bin()).args(dirs).args(["--runs", "1", "--t-max", "40", "--no-oracle"]).args(extra))
+    };
+    let stdout = short_eval(&out, &["--workers", "2"]);
     assert!(stdout.contains("Avg.Int") && stdout.contains("actions sampled from π"), "{stdout}");
     let results = csv_rows(&out.join("results.csv"));
     assert_eq!(results.len(), 112, "14 points × 8 yaws × 1 run");
@@ -130,19 +123,7 @@ fn a_tiny_run_can_be_evaluated_and_plotted() {
     // blocking depends on the batch size (which a long episode can amplify): nearly
     // every return agrees to 1e-3. (With one noise stream per batch almost none would.)
     let again = root.join("eval-one-worker");
-    ok(Command::new(eval_bin()).args([
-        "--run-dir",
-        run.to_str().unwrap(),
-        "--runs",
-        "1",
-        "--t-max",
-        "40",
-        "--envs",
-        "3",
-        "--no-oracle",
-        "--out",
-        again.to_str().unwrap(),
-    ]));
+    short_eval(&again, &["--envs", "3"]);
     let mut a = results.clone();
     let mut b = csv_rows(&again.join("results.csv"));
     a.sort();
