@@ -23,8 +23,9 @@
 //! x · gy; input gradient: Σ over positions of gy·Wᵀ at the inputs each tap read) for
 //! the geometry it is given; every instruction set agrees with the portable kernels
 //! and the column-matrix definition (unit tests below), and the parent's tests check
-//! the whole op against candle's `conv2d` and finite differences on every path. The input is zero-padded once per sample
-//! ([`pad_frames`]), so no kernel has bounds logic for the padding.
+//! the whole op against candle's `conv2d` and finite differences on every path. The
+//! input is zero-padded once per sample ([`pad_frames`]), so no kernel has bounds
+//! logic for the padding.
 
 use std::ops::Range;
 
