@@ -315,6 +315,7 @@ pub(super) fn matmul(
         n,
         k,
         dst: dst.as_mut_ptr(),
+        dst_strides: (n, 1),
         accumulate,
         lhs: lhs.as_ptr(),
         lhs_strides,
@@ -333,6 +334,8 @@ struct GemmOp {
     n: usize,
     k: usize,
     dst: *mut f32,
+    /// (row, column) strides of `dst`.
+    dst_strides: (usize, usize),
     accumulate: bool,
     lhs: *const f32,
     lhs_strides: (usize, usize),
@@ -366,8 +369,8 @@ macro_rules! gemm_with {
             op.n,
             op.k,
             op.dst,
-            1,
-            op.n as isize,
+            op.dst_strides.1 as isize,
+            op.dst_strides.0 as isize,
             op.accumulate,
             op.lhs,
             op.lhs_strides.1 as isize,
@@ -390,18 +393,41 @@ macro_rules! gemm_with {
 }
 
 impl GemmOp {
+    /// The same product with a column-major destination where ours is row-major:
+    /// C = A·B as Cᵀ = Bᵀ·Aᵀ (operands swapped, strides exchanged). gemm's
+    /// microkernels store a column-major destination with vector stores and a
+    /// row-major one through a scalar copy, so its own front end (`gemm::gemm`)
+    /// makes this swap; calling the generic driver directly, we make it here.
+    fn column_major(self) -> GemmOp {
+        if self.dst_strides.1 >= self.dst_strides.0 {
+            return self;
+        }
+        let flip = |(r, c): (usize, usize)| (c, r);
+        GemmOp {
+            m: self.n,
+            n: self.m,
+            dst_strides: flip(self.dst_strides),
+            lhs: self.rhs,
+            lhs_strides: flip(self.rhs_strides),
+            rhs: self.lhs,
+            rhs_strides: flip(self.lhs_strides),
+            ..self
+        }
+    }
+
     /// Safety: the operands cover every element their strides address, `dst` aliases
     /// neither input, and `isa` is supported by this CPU (asserted).
     unsafe fn run(self, isa: Isa) {
         assert!(isa.is_supported(), "instruction set {isa} is not available on this CPU");
+        let op = self.column_major();
         // Safety: as documented on the function.
         unsafe {
             match isa {
                 #[cfg(target_arch = "x86_64")]
-                Isa::Avx512 => gemm_with!(self, gemm_common::simd::V4, gemm_f32::microkernel::avx512f::f32, 16),
+                Isa::Avx512 => gemm_with!(op, gemm_common::simd::V4, gemm_f32::microkernel::avx512f::f32, 16),
                 #[cfg(target_arch = "x86_64")]
-                Isa::Avx2 => gemm_with!(self, gemm_common::simd::V3, gemm_f32::microkernel::fma::f32, 8),
-                _ => gemm_with!(self, gemm_common::simd::Scalar, gemm_f32::microkernel::scalar::f32, 1),
+                Isa::Avx2 => gemm_with!(op, gemm_common::simd::V3, gemm_f32::microkernel::fma::f32, 8),
+                _ => gemm_with!(op, gemm_common::simd::Scalar, gemm_f32::microkernel::scalar::f32, 1),
             }
         }
     }

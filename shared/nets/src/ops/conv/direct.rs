@@ -263,7 +263,7 @@ mod vector {
         positions: Range<usize>,
     ) {
         let (co, width) = (g.co, S::LANES * R);
-        debug_assert_eq!(co % width, 0);
+        assert_eq!(co % width, 0, "C_out is a whole number of register tiles");
         let (x, w, y) = (xp.as_ptr(), w.as_ptr(), y.as_mut_ptr());
         let (first, end) = (positions.start, positions.end);
         // Safety: positions q..q+P (or q) and their taps are in bounds; channel
@@ -359,7 +359,7 @@ mod vector {
         dw: &mut [f32],
     ) {
         let (co, width) = (g.co, S::LANES * R);
-        debug_assert_eq!(co % width, 0);
+        assert_eq!(co % width, 0, "C_out is a whole number of register tiles");
         let [kt, kh, kw] = g.spec.kernel;
         let run = kw * g.ci;
         let taps = kt * kh * run;
