@@ -11,10 +11,10 @@
 #   2. correctness: one DSAC update on the CPU and on the GPU from the same weights and
 #      batch, CPU preset and paper networks (pednav-device-check: losses within 1e-3,
 #      weights within two Adam steps);
-#   3. the learner bench on CUDA, configs (a)–(d) and the actor's step
-#      (dsac_update --device cuda --json OUT_DIR/cuda.json);
-#   4. PyTorch's reference of the same update on the same GPU, when a Python with
-#      torch is available (dsac_ref.py --device cuda), and the ratios;
+#   3. PyTorch's reference of the same update on the same GPU, when a Python with
+#      torch is available (dsac_ref.py --device cuda);
+#   4. the learner bench on CUDA, configs (a)–(d) and the actor's step, with the
+#      ratios against step 3 (dsac_update --device cuda --json OUT_DIR/cuda.json);
 #   5. a 5-minute paper-config training run (NavACL⁺ (S), 84², N_h 16, batch 64;
 #      warm-up cut to 5,000 steps so updates start): learner on the GPU, one actor
 #      rendering on the CPU; prints ms per update and env steps/s.
@@ -78,36 +78,24 @@ for cfg in deploy/configs/cpu_reduced.toml deploy/configs/paper/navacl_plus_s_16
     fi
 done
 
-log "3. learner bench on cuda"
-"$bins/dsac_update" --device cuda --json "$out/cuda.json" 2>&1 | tee "$out/bench-cuda.txt" | grep -v '^$' | tee -a "$out/summary.txt" \
-    || log "FAILED: dsac_update --device cuda (see $out/bench-cuda.txt)"
-
-log "4. PyTorch on the same GPU"
+log "3. PyTorch's reference of the same update on the same GPU"
 ref=""
 for r in ../shared/bench/torch_ref/dsac_ref.py target-cuda/torch_ref/dsac_ref.py; do [ -f "$r" ] && ref="$r" && break; done
+pytorch=()
 if [ -n "$ref" ] && python3 -c 'import torch; assert torch.cuda.is_available()' 2>/dev/null; then
-    python3 "$ref" --device cuda --only A B C D act --warmup 3 --iters 10 > "$out/pytorch-cuda.txt" 2>"$out/pytorch-cuda.log" \
-        || log "FAILED: PyTorch reference (see $out/pytorch-cuda.log)"
-    cat "$out/pytorch-cuda.txt" | tee -a "$out/summary.txt"
-    python3 - "$out" <<'PY' | tee -a "$out/summary.txt"
-import json, sys
-out = sys.argv[1]
-ours = json.load(open(f"{out}/cuda.json"))
-keys = {"A": "a", "B": "b", "C": "c", "D": "d", "act_nograd_b1": "act_full_1", "act_nograd_b16": "act_full_16"}
-print("| config | ours ms (best) | PyTorch ms | ours / PyTorch |")
-print("|---|---|---|---|")
-for line in open(f"{out}/pytorch-cuda.txt"):
-    parts = line.split()
-    if len(parts) != 2:
-        continue
-    key = next((v for k, v in keys.items() if parts[0].startswith(k + "_")), None)
-    if key in ours:
-        p = float(parts[1])
-        print(f"| {key} | {ours[key]['best_ms']:.2f} | {p:.2f} | {ours[key]['best_ms'] / p:.2f} |")
-PY
+    if python3 "$ref" --device cuda --only A B C D act --warmup 3 --iters 10 > "$out/pytorch-cuda.txt" 2>"$out/pytorch-cuda.log"; then
+        tee -a "$out/summary.txt" < "$out/pytorch-cuda.txt"
+        pytorch=(--pytorch "$out/pytorch-cuda.txt")
+    else
+        log "FAILED: PyTorch reference (see $out/pytorch-cuda.log)"
+    fi
 else
     log "skipped: no dsac_ref.py (carry ../shared/bench/torch_ref as target-cuda/torch_ref) or no torch with CUDA"
 fi
+
+log "4. learner bench on cuda (ratios against step 3's PyTorch figures, also in cuda.json)"
+"$bins/dsac_update" --device cuda --json "$out/cuda.json" "${pytorch[@]}" 2>&1 | tee "$out/bench-cuda.txt" \
+    | grep -v '^$' | tee -a "$out/summary.txt" || log "FAILED: dsac_update --device cuda (see $out/bench-cuda.txt)"
 
 log "5. 5-minute paper-config run: learner on cuda, 1 actor on the CPU"
 run="$(mktemp -d)/run"

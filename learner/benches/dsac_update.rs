@@ -9,8 +9,9 @@
 //! this CPU, or `PEDNAV_ISA=baseline|avx2|avx512`); the bench prints which. With
 //! `--json FILE` it also writes every figure as
 //! `{"a": {"best_ms": …, "median_ms": …}, …, "act_full_1": {…}, "act_cache_1": {…},
-//! "act_full_16": {…}, "act_cache_16": {…}, "isa": "avx2", "cpu": …, "threads": …}`
-//! (keys a–d as in the table; act_* at N_h 16, 84²).
+//! "act_full_16": {…}, "act_cache_16": {…}, "isa": "avx2", "cpu": …, "threads": …,
+//! "configs": {…}}` (keys a–d as in the table; act_* at N_h 16, 84²; `configs` holds
+//! the exact network, update and replay settings of every case).
 //!
 //! Compare with the PyTorch reference of the same update in the same minute
 //! (`../shared/bench/torch_ref/bench.sh`): these machines are shared and differ, so
@@ -147,6 +148,7 @@ fn main() {
     report.insert("cpu".into(), cpu.clone().into());
     report.insert("threads".into(), threads.into());
     report.insert("device".into(), device_spec.to_string().into());
+    let mut configs = serde_json::Map::new();
     println!(
         "| config | networks only ms/update: best (median) | sample + update ms (median) | sampling share | PyTorch ms | ratio best/PyTorch |"
     );
@@ -183,6 +185,11 @@ fn main() {
         }
         let nb = best(&net_ms);
         report.insert(case.key.into(), figure(&net_ms));
+        // Exactly what ran: the networks, the update's settings and the replay.
+        configs.insert(
+            case.key.to_string(),
+            serde_json::json!({ "what": case.what, "nets": case.nets, "dsac": cfg, "replay": rc, "replay_steps": 3_000 }),
+        );
         let pytorch_ms = pytorch.get(case.key).copied().unwrap_or(case.pytorch_ms);
         let (n, f, s) = (median(net_ms), median(full_ms), median(sample_ms));
         println!(
@@ -196,6 +203,7 @@ fn main() {
     }
 
     if only.as_ref().is_some_and(|o| !o.iter().any(|k| k == "act")) {
+        report.insert("configs".into(), configs.into());
         write_report(json_path, report, &pytorch);
         return;
     }
@@ -206,6 +214,7 @@ fn main() {
     println!("|---|---|---|---|---|");
     for (history, size) in [(16, 84), (8, 42)] {
         let nets_cfg = NetsConfig { history, image_size: size, ..Default::default() };
+        configs.insert(format!("act_h{history}_{size}"), serde_json::json!({ "nets": nets_cfg }));
         let nets = pednav_nets::DsacNets::new(&nets_cfg, &device, 0).unwrap();
         for envs in [1usize, 16] {
             let ids: Vec<usize> = (0..envs).collect();
@@ -253,6 +262,7 @@ fn main() {
             );
         }
     }
+    report.insert("configs".into(), configs.into());
     write_report(json_path, report, &pytorch);
 }
 

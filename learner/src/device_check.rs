@@ -24,20 +24,11 @@ use crate::replay::{DualReplay, Frame, FrameKind, ReplayConfig, Step};
 /// state vectors), actions and rewards, episodes of 100 steps of which every third
 /// ends at the goal. Benchmarks and device checks use it; it trains nothing.
 pub fn fill_replay(replay: &mut DualReplay, kind: FrameKind, steps: usize, rng: &mut ChaCha8Rng) -> Result<()> {
-    let mut frame = vec![
-        0u8;
-        match kind {
-            FrameKind::Pixels { size } => size * size,
-            FrameKind::State { .. } => 0,
-        }
-    ];
-    let mut state = vec![
-        0f32;
-        match kind {
-            FrameKind::State { dim } => dim,
-            FrameKind::Pixels { .. } => 0,
-        }
-    ];
+    let (pixels, values) = match kind {
+        FrameKind::Pixels { size } => (size * size, 0),
+        FrameKind::State { dim } => (0, dim),
+    };
+    let (mut frame, mut state) = (vec![0u8; pixels], vec![0f32; values]);
     for i in 0..steps {
         rng.fill(&mut frame[..]);
         for v in state.iter_mut() {

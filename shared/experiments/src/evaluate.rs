@@ -119,7 +119,8 @@ impl Evaluator {
                     nets,
                     cfg,
                     deterministic,
-                    noise: (0..envs).map(|e| ChaCha8Rng::seed_from_u64(seed ^ e as u64)).collect(),
+                    // Placeholders: `start` reseeds each from its task before any action.
+                    noise: vec![ChaCha8Rng::seed_from_u64(0); envs],
                 }
             }
             PolicyKind::Random => Policy::Random(ChaCha8Rng::seed_from_u64(seed)),

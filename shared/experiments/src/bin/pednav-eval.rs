@@ -106,6 +106,12 @@ struct Cli {
     shard_out: Option<PathBuf>,
 }
 
+/// " (how the learned policy acts)" for the progress line and the table's title;
+/// nothing for the random walk and the oracle.
+fn action_label(cli: &Cli) -> String {
+    if cli.policy == PolicyArg::Learned { format!(" ({})", cli.mode.describe()) } else { String::new() }
+}
+
 fn kind(cli: &Cli) -> PolicyKind {
     match cli.policy {
         PolicyArg::Learned => PolicyKind::Learned { deterministic: cli.mode == ActionMode::Mode },
@@ -176,7 +182,7 @@ fn main() -> Result<()> {
         },
         cli.runs,
         cli.t_max,
-        if cli.policy == PolicyArg::Learned { format!(" ({})", cli.mode.describe()) } else { String::new() },
+        action_label(&cli),
         cli.workers,
         cli.envs
     );
@@ -212,7 +218,7 @@ fn main() -> Result<()> {
     let title = format!(
         "{} — {policy_name} policy{}, {} episodes, T_max {}",
         cli.run_dir.as_ref().map_or("no run".into(), |d| d.display().to_string()),
-        if cli.policy == PolicyArg::Learned { format!(" ({})", cli.mode.describe()) } else { String::new() },
+        action_label(&cli),
         results.len(),
         cli.t_max
     );
