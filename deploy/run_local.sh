@@ -10,7 +10,7 @@
 #
 # Ctrl-C (or SIGTERM) stops the actors, then the learner (final checkpoint) and
 # the curriculum service (saved state); running the same --run-dir again resumes.
-# Everything else (--seed, --learner-threads, --envs, --device, --actor-device) is
+# Everything else (--seed, --set FIELD=VALUE, --learner-threads, --envs, --device, --actor-device) is
 # passed to `pednav-run launch`; see `target/release/pednav-run launch --help`.
 # `--device cuda[:N]` (or --actor-device) builds and runs the CUDA binaries
 # (deploy/build_cuda.sh, target-cuda/release; no GPU is needed to build them).

@@ -158,7 +158,9 @@ fn main() {
         if only.as_ref().is_some_and(|o| !o.iter().any(|k| k == case.key)) {
             continue;
         }
-        let cfg = DsacConfig { batch_size: case.batch, warmup: case.batch as u64, ..Default::default() };
+        // One critic, as the PyTorch reference (`dsac_ref.py`) implements the update.
+        let cfg =
+            DsacConfig { batch_size: case.batch, warmup: case.batch as u64, twin_critics: false, ..Default::default() };
         let mut dsac = Dsac::new(&cfg, &case.nets, &device, 0).unwrap();
         let rc = ReplayConfig { nonterminal_capacity: 5_000, terminal_capacity: 100 };
         let mut replay =

@@ -16,8 +16,8 @@ use std::collections::{BTreeMap, HashMap};
 use std::fs;
 use std::path::{Path, PathBuf};
 
-use candle_core::Tensor;
-use pednav_nets::{NetsConfig, ParamStore};
+use candle_core::{Device, Tensor};
+use pednav_nets::{DsacNets, NetsConfig, ParamStore};
 use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
 
@@ -37,6 +37,10 @@ pub struct CheckpointMeta {
     pub format: u32,
     /// The architecture the weights belong to.
     pub nets: NetsConfig,
+    /// Whether the checkpoint holds the second critic of twin critics (absent in
+    /// checkpoints written before the option existed: `false`).
+    #[serde(default)]
+    pub twin_critics: bool,
     /// Updates applied.
     pub updates: u64,
     /// Updates skipped by the non-finite guard.
@@ -102,6 +106,7 @@ pub fn save_checkpoint(
     let meta = CheckpointMeta {
         format: FORMAT,
         nets: dsac.nets.cfg.clone(),
+        twin_critics: dsac.nets.twin.is_some(),
         updates: dsac.updates,
         skipped: dsac.skipped,
         optimizer_steps,
@@ -144,6 +149,56 @@ pub fn read_meta(dir: &Path) -> Result<CheckpointMeta> {
     Ok(meta)
 }
 
+/// The tensors of `file` in the checkpoint `dir`, after checking its CRC-32 against
+/// the state file.
+fn read_verified(dir: &Path, meta: &CheckpointMeta, file: &str, dev: &Device) -> Result<HashMap<String, Tensor>> {
+    let path = dir.join(file);
+    let want = meta.checksums.get(file).ok_or_else(|| ck_err(&path, "not listed in the state file"))?;
+    let got = crc_of(&path)?;
+    if got != *want {
+        return Err(ck_err(
+            &path,
+            format!("checksum mismatch (file {got:08x}, state file {want:08x}): the file is corrupted"),
+        ));
+    }
+    candle_core::safetensors::load(&path, dev).map_err(|e| ck_err(&path, e.to_string()))
+}
+
+/// Load only what acting needs ([`DsacNets::acting_stores`]: the policy, plus the
+/// quantile net that holds a shared encoder) into `nets` from the checkpoint in
+/// `dir`, verifying the architecture and those files' checksums first; on any error
+/// `nets` is unchanged. Reads a full checkpoint, or a results folder that keeps only
+/// `state.json` and those files ([`acting_files`]).
+pub fn load_acting(dir: &Path, nets: &DsacNets) -> Result<CheckpointMeta> {
+    let meta = read_meta(dir)?;
+    if meta.nets != nets.cfg {
+        return Err(ck_err(
+            dir,
+            format!("it was written for networks {:?}, these networks are {:?}", meta.nets, nets.cfg),
+        ));
+    }
+    let dev = nets.policy.store.device().clone();
+    let stores = nets.acting_stores();
+    let mut weights = Vec::new();
+    for store in &stores {
+        let values = read_verified(dir, &meta, &format!("{}.safetensors", store.name()), &dev)?;
+        store.check(&values)?;
+        weights.push(values);
+    }
+    for (store, values) in stores.iter().zip(&weights) {
+        store.load(values)?;
+    }
+    Ok(meta)
+}
+
+/// The files of a checkpoint that [`load_acting`] reads for `nets`: the state file
+/// and the acting networks' weights — what a results folder keeps of a run.
+pub fn acting_files(nets: &DsacNets) -> Vec<String> {
+    std::iter::once(STATE_FILE.to_string())
+        .chain(nets.acting_stores().iter().map(|s| format!("{}.safetensors", s.name())))
+        .collect()
+}
+
 /// Restore `dsac` from the checkpoint in `dir`. Everything is verified first; on
 /// any error `dsac` is unchanged.
 pub fn load_checkpoint(dir: &Path, dsac: &mut Dsac) -> Result<CheckpointMeta> {
@@ -154,19 +209,16 @@ pub fn load_checkpoint(dir: &Path, dsac: &mut Dsac) -> Result<CheckpointMeta> {
             format!("it was written for networks {:?}, the learner is configured with {:?}", meta.nets, dsac.nets.cfg),
         ));
     }
+    let twin = dsac.nets.twin.is_some();
+    if meta.twin_critics != twin {
+        let (has, wants) = if meta.twin_critics { ("has a", "without") } else { ("has no", "with") };
+        return Err(ck_err(
+            dir,
+            format!("it {has} twin critic and the learner is configured {wants} one (`dsac.twin_critics`)"),
+        ));
+    }
     let dev = dsac.nets.policy.store.device().clone();
-    let read = |file: &str| -> Result<HashMap<String, Tensor>> {
-        let path = dir.join(file);
-        let want = meta.checksums.get(file).ok_or_else(|| ck_err(&path, "not listed in the state file"))?;
-        let got = crc_of(&path)?;
-        if got != *want {
-            return Err(ck_err(
-                &path,
-                format!("checksum mismatch (file {got:08x}, state file {want:08x}): the file is corrupted"),
-            ));
-        }
-        candle_core::safetensors::load(&path, &dev).map_err(|e| ck_err(&path, e.to_string()))
-    };
+    let read = |file: &str| read_verified(dir, &meta, file, &dev);
     let stores = checkpoint_stores(dsac);
     let mut weights = Vec::new();
     for store in &stores {
@@ -179,7 +231,7 @@ pub fn load_checkpoint(dir: &Path, dsac: &mut Dsac) -> Result<CheckpointMeta> {
     for (k, t) in moments {
         let (opt, key) =
             k.split_once('/').ok_or_else(|| ck_err(&dir.join(OPTIM_FILE), format!("bad moment name `{k}`")))?;
-        let opt = ["policy", "fraction", "quantile", "alpha"]
+        let opt = ["policy", "fraction", "quantile", "alpha", "quantile2"]
             .into_iter()
             .find(|o| *o == opt)
             .ok_or_else(|| ck_err(&dir.join(OPTIM_FILE), format!("unknown optimiser `{opt}`")))?;

@@ -12,12 +12,17 @@
 //! - policy: η·(α log π(ã|s) − Σᵢ (τᵢ₊₁ − τᵢ) Z(s, ã, τ̂ᵢ)) with ã reparameterised;
 //! - temperature: −η·log α·(log π(ã|s) + H̄).
 //!
+//! With twin critics (`twin_critics`, as the original DSAC) a second quantile net Z₂
+//! with its own target is trained on the same yⱼ (the critic loss is the sum of the
+//! two); yⱼ uses, per sample, the target distribution whose mean Σ widths·Z is the
+//! smaller; the policy maximises min(Q₁, Q₂); the fraction loss reads Z₁ only.
+//!
 //! Invariant: every loss is computed with the pre-update weights and all gradients
 //! are taken before any optimiser steps; if any loss or gradient is non-finite the
 //! whole update is skipped (counted and logged) and the weights stay as they were.
 
 use candle_core::{D, DType, Device, Tensor};
-use pednav_nets::heads::standard_normal;
+use pednav_nets::heads::{features_of, standard_normal};
 use pednav_nets::{AdamW, AdamWConfig, DsacNets, NetsConfig, Obs, ParamStore, QuantileGrid, StepOutcome};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
@@ -57,6 +62,15 @@ pub fn fraction_gradient(z_taus: &Tensor, z_hats: &Tensor) -> Result<Tensor> {
     Ok(((z_taus * 2.0)? - left)?.sub(&right)?)
 }
 
+/// Per sample, the row of `a` or `b` (B, N) whose mean under `widths` (B, N) is the
+/// smaller (ties: `a`) — the twin critics' pessimistic target distribution.
+pub fn smaller_mean(a: &Tensor, b: &Tensor, widths: &Tensor) -> Result<Tensor> {
+    let mean_a = (a * widths)?.sum_keepdim(D::Minus1)?;
+    let mean_b = (b * widths)?.sum_keepdim(D::Minus1)?;
+    let take_a = mean_a.le(&mean_b)?.broadcast_as(a.shape())?;
+    Ok(take_a.where_cond(a, b)?)
+}
+
 /// Mean of η·x over the batch.
 fn weighted_mean(x: &Tensor, eta: &Tensor) -> Result<Tensor> {
     Ok((x * eta)?.mean_all()?)
@@ -65,7 +79,7 @@ fn weighted_mean(x: &Tensor, eta: &Tensor) -> Result<Tensor> {
 /// Diagnostics of one update.
 #[derive(Debug, Clone, Copy, Default, PartialEq)]
 pub struct UpdateStats {
-    /// Critic (quantile Huber) loss.
+    /// Critic (quantile Huber) loss (with twin critics the mean of the two).
     pub critic_loss: f64,
     /// Policy loss.
     pub policy_loss: f64,
@@ -77,7 +91,7 @@ pub struct UpdateStats {
     pub alpha: f64,
     /// Policy entropy estimate −E[log π].
     pub entropy: f64,
-    /// Mean Q(s, a) of the batch (Σ widths·Z).
+    /// Mean Q(s, a) of the batch (Σ widths·Z; with twin critics the smaller of the two per sample).
     pub q_mean: f64,
     /// Gradient norm of the quantile net (before clipping).
     pub critic_grad_norm: f64,
@@ -98,6 +112,8 @@ pub struct Dsac {
     pub(crate) opt_policy: AdamW,
     pub(crate) opt_fraction: AdamW,
     pub(crate) opt_quantile: AdamW,
+    /// The twin critic's optimiser (twin critics only).
+    pub(crate) opt_quantile2: Option<AdamW>,
     pub(crate) opt_alpha: AdamW,
     /// Noise for policy samples (seeded; saved in checkpoints).
     pub rng: ChaCha8Rng,
@@ -111,7 +127,10 @@ impl Dsac {
     /// Fresh networks and optimisers from `seed`.
     pub fn new(cfg: &DsacConfig, nets_cfg: &NetsConfig, device: &Device, seed: u64) -> Result<Dsac> {
         cfg.validate()?;
-        let nets = DsacNets::new(nets_cfg, device, seed)?;
+        let mut nets = DsacNets::new(nets_cfg, device, seed)?;
+        if cfg.twin_critics {
+            nets = nets.with_twin_critic(seed)?;
+        }
         let mut log_alpha = ParamStore::new("log_alpha", device);
         log_alpha.insert("log_alpha", Tensor::new(&[cfg.initial_alpha.ln() as f32], device)?)?;
         let opt = |store: &ParamStore, lr: f64| {
@@ -123,6 +142,7 @@ impl Dsac {
             opt_policy: opt(&nets.policy.store, cfg.lr_policy)?,
             opt_fraction: opt(&nets.fraction.store, cfg.lr_fraction)?,
             opt_quantile: opt(&nets.quantile.store, cfg.lr_quantile)?,
+            opt_quantile2: nets.twin.as_ref().map(|t| opt(&t.quantile.store, cfg.lr_quantile)).transpose()?,
             opt_alpha: AdamW::new(&log_alpha, AdamWConfig::with_lr(cfg.lr_alpha))?,
             cfg: cfg.clone(),
             nets,
@@ -139,14 +159,18 @@ impl Dsac {
         Ok((v as f64).exp())
     }
 
-    /// The optimisers by name, in checkpoint order.
-    pub(crate) fn optimizers(&mut self) -> [(&'static str, &mut AdamW); 4] {
-        [
+    /// The optimisers by name, in checkpoint order (`quantile2` with twin critics only).
+    pub(crate) fn optimizers(&mut self) -> Vec<(&'static str, &mut AdamW)> {
+        let mut opts = vec![
             ("policy", &mut self.opt_policy),
             ("fraction", &mut self.opt_fraction),
             ("quantile", &mut self.opt_quantile),
             ("alpha", &mut self.opt_alpha),
-        ]
+        ];
+        if let Some(opt) = &mut self.opt_quantile2 {
+            opts.push(("quantile2", opt));
+        }
+        opts
     }
 
     /// Sample actions for a batch of observations (stochastic, or tanh(μ) when
@@ -184,7 +208,13 @@ impl Dsac {
         let (a_next, logp_next) = (next.action.detach(), next.log_prob.detach());
         let next_fr = nets.fraction.fractions(&next_fraction_features.detach(), &a_next)?;
         let (next_hats, next_widths) = (next_fr.hats.detach(), next_fr.widths.detach());
-        let z_next = nets.target.grid(&nets.target_features(&next_obs)?.detach(), &a_next)?.at(&next_hats)?.detach();
+        let target_features = nets.target_features(&next_obs)?.detach();
+        let mut z_next = nets.target.grid(&target_features, &a_next)?.at(&next_hats)?.detach();
+        if let Some(twin) = &nets.twin {
+            let f2 = features_of(&twin.target.encoder, &next_obs, Some(&target_features))?.detach();
+            let z2 = twin.target.grid(&f2, &a_next)?.at(&next_hats)?.detach();
+            z_next = smaller_mean(&z_next, &z2, &next_widths)?;
+        }
         let soft = z_next.broadcast_sub(&(logp_next * alpha)?.unsqueeze(1)?)?;
         let not_done = (batch.done.neg()? + 1.0)?;
         let target = soft
@@ -198,8 +228,25 @@ impl Dsac {
         let hats = fr.hats.detach();
         let grid = nets.quantile.grid(&feats.quantile, &batch.action)?;
         let z = grid.at(&hats)?;
-        let critic_loss = weighted_mean(&quantile_huber_loss(&z, &target, &hats, &next_widths, c.huber_kappa)?, eta)?;
-        let q_mean = (&z.detach() * fr.widths.detach())?.sum(D::Minus1)?.mean_all()?.to_scalar::<f32>()? as f64;
+        let mut critic_loss =
+            weighted_mean(&quantile_huber_loss(&z, &target, &hats, &next_widths, c.huber_kappa)?, eta)?;
+        let mut q_batch = (&z.detach() * fr.widths.detach())?.sum(D::Minus1)?;
+        // The twin's features: its own encoder's, or the shared encoder's *with* their
+        // graph, so that both critic losses train a shared encoder.
+        let twin_features = match &nets.twin {
+            Some(twin) => Some(match &twin.quantile.encoder {
+                Some(e) => e.encode(&obs)?,
+                None => feats.quantile.clone(),
+            }),
+            None => None,
+        };
+        if let (Some(twin), Some(f2)) = (&nets.twin, &twin_features) {
+            let z2 = twin.quantile.grid(f2, &batch.action)?.at(&hats)?;
+            let loss2 = weighted_mean(&quantile_huber_loss(&z2, &target, &hats, &next_widths, c.huber_kappa)?, eta)?;
+            critic_loss = (critic_loss + loss2)?;
+            q_batch = q_batch.minimum(&(&z2.detach() * fr.widths.detach())?.sum(D::Minus1)?)?;
+        }
+        let q_mean = q_batch.mean_all()?.to_scalar::<f32>()? as f64;
 
         // Fraction proposal (quantile values detached; gradient through τ only).
         let n = fr.taus.dims()[1] - 1;
@@ -216,7 +263,11 @@ impl Dsac {
         let pi = nets.policy.head(&feats.policy)?.sample(&standard_normal(&mut self.rng, bsz, &dev)?)?;
         let new_fr = nets.fraction.fractions(&feats.fraction.detach(), &pi.action.detach())?;
         let z_new = nets.quantile.grid(&feats.quantile.detach(), &pi.action)?.at(&new_fr.hats.detach())?;
-        let q_new = (z_new * new_fr.widths.detach())?.sum(D::Minus1)?;
+        let mut q_new = (z_new * new_fr.widths.detach())?.sum(D::Minus1)?;
+        if let (Some(twin), Some(f2)) = (&nets.twin, &twin_features) {
+            let z2_new = twin.quantile.grid(&f2.detach(), &pi.action)?.at(&new_fr.hats.detach())?;
+            q_new = q_new.minimum(&(z2_new * new_fr.widths.detach())?.sum(D::Minus1)?)?;
+        }
         let policy_loss = weighted_mean(&((&pi.log_prob * alpha)? - q_new)?, eta)?;
 
         // Temperature.
@@ -226,8 +277,9 @@ impl Dsac {
         let entropy = -(pi.log_prob.detach().mean_all()?.to_scalar::<f32>()? as f64);
 
         let scalar = |t: &Tensor| -> Result<f64> { Ok(t.to_scalar::<f32>()? as f64) };
+        let critics = if nets.twin.is_some() { 2.0 } else { 1.0 };
         let mut stats = UpdateStats {
-            critic_loss: scalar(&critic_loss)?,
+            critic_loss: scalar(&critic_loss)? / critics,
             policy_loss: scalar(&policy_loss)?,
             fraction_loss: scalar(&fraction_loss)?,
             alpha_loss: scalar(&alpha_loss)?,
@@ -245,30 +297,31 @@ impl Dsac {
         let g_fraction = fraction_loss.backward()?;
         let g_policy = policy_loss.backward()?;
         let g_alpha = alpha_loss.backward()?;
-        let norms = [
-            self.opt_quantile.grad_norm(&g_critic)?,
-            self.opt_fraction.grad_norm(&g_fraction)?,
-            self.opt_policy.grad_norm(&g_policy)?,
-            self.opt_alpha.grad_norm(&g_alpha)?,
+        // Each optimiser with its gradients; the twin critic's from the same critic loss.
+        let mut steps: Vec<(&mut AdamW, &candle_core::backprop::GradStore)> = vec![
+            (&mut self.opt_quantile, &g_critic),
+            (&mut self.opt_fraction, &g_fraction),
+            (&mut self.opt_policy, &g_policy),
+            (&mut self.opt_alpha, &g_alpha),
         ];
+        if let Some(opt) = &mut self.opt_quantile2 {
+            steps.push((opt, &g_critic));
+        }
+        let norms =
+            steps.iter().map(|(opt, grads)| opt.grad_norm(grads)).collect::<std::result::Result<Vec<_>, _>>()?;
         stats.critic_grad_norm = norms[0];
         stats.policy_grad_norm = norms[2];
         if norms.iter().any(|v| !v.is_finite()) {
             return Ok(self.skip(stats, "non-finite gradient"));
         }
-        for ((opt, grads), norm) in [
-            (&mut self.opt_quantile, &g_critic),
-            (&mut self.opt_fraction, &g_fraction),
-            (&mut self.opt_policy, &g_policy),
-            (&mut self.opt_alpha, &g_alpha),
-        ]
-        .into_iter()
-        .zip(norms)
-        {
+        for ((opt, grads), norm) in steps.into_iter().zip(norms) {
             let outcome = opt.step_with_norm(grads, norm)?;
             debug_assert!(matches!(outcome, StepOutcome::Applied { .. }), "norms were checked finite");
         }
         self.nets.target.store.soft_update(&self.nets.quantile.store, c.soft_update)?;
+        if let Some(twin) = &self.nets.twin {
+            twin.target.store.soft_update(&twin.quantile.store, c.soft_update)?;
+        }
         self.updates += 1;
         Ok(stats)
     }

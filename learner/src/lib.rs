@@ -10,10 +10,10 @@ pub mod error;
 pub mod rate;
 pub mod replay;
 
-pub use checkpoint::{CheckpointMeta, load_checkpoint, read_meta, save_checkpoint};
+pub use checkpoint::{CheckpointMeta, acting_files, load_acting, load_checkpoint, read_meta, save_checkpoint};
 pub use config::DsacConfig;
 pub use device_check::{DeviceComparison, compare_update, fill_replay};
-pub use dsac::{Dsac, UpdateStats, fraction_gradient, quantile_huber_loss};
+pub use dsac::{Dsac, UpdateStats, fraction_gradient, quantile_huber_loss, smaller_mean};
 pub use error::{LearnerError, Result};
 pub use rate::RateLimiter;
-pub use replay::{Batch, DualReplay, Frame, FrameKind, ReplayConfig, Step, dual_split};
+pub use replay::{Batch, DualReplay, Frame, FrameKind, ReplayConfig, Step, dual_split, shift_frames};

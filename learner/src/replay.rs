@@ -443,6 +443,15 @@ impl DualReplay {
 
     /// Sample a batch of `batch` transitions by Algorithm 2.
     pub fn sample(&self, batch: usize, rng: &mut ChaCha8Rng) -> Result<Batch> {
+        self.sample_shifted(batch, 0, rng)
+    }
+
+    /// [`DualReplay::sample`] with DrQ's random-shift augmentation of pixel batches:
+    /// each transition's N_h + 1 frames are shifted together by one (dx, dy) drawn
+    /// uniformly from [−`max_shift`, `max_shift`]² ([`shift_frames`]), so o_t and
+    /// o_{t+1} stay views of one window. `max_shift` 0 draws nothing and equals
+    /// [`DualReplay::sample`] bit for bit; state observations are never shifted.
+    pub fn sample_shifted(&self, batch: usize, max_shift: usize, rng: &mut ChaCha8Rng) -> Result<Batch> {
         if batch == 0 {
             return Err(config_error("batch_size", batch, "must be positive"));
         }
@@ -459,6 +468,7 @@ impl DualReplay {
             for i in 0..=n {
                 self.term_frames.read(e * (n + 1) + i, fl, &mut frames);
             }
+            self.augment(&mut frames, max_shift, rng);
             b.add(
                 &frames,
                 &self.term_actions[e * n..(e + 1) * n],
@@ -475,10 +485,39 @@ impl DualReplay {
                 self.ring.frames.read(self.ring.slot(s.unwrap_or(pad)), fl, &mut frames);
             }
             let (acts, rews) = self.history_of(&seq);
+            self.augment(&mut frames, max_shift, rng);
             b.add(&frames, &acts, &rews, 0.0, eta_n as f32);
         }
         b.finish(self.kind, n_t, &self.device)
     }
+}
+
+impl DualReplay {
+    /// Shift one transition's frames by a random offset (pixel replays, `max_shift` > 0).
+    fn augment(&self, frames: &mut Vec<f32>, max_shift: usize, rng: &mut ChaCha8Rng) {
+        let FrameKind::Pixels { size } = self.kind else { return };
+        if max_shift == 0 {
+            return;
+        }
+        let m = max_shift as i64;
+        let (dx, dy) = (rng.random_range(-m..=m), rng.random_range(-m..=m));
+        *frames = shift_frames(frames, size, dx as isize, dy as isize);
+    }
+}
+
+/// Square frames of side `size`, concatenated, each shifted by (dx, dy) pixels with
+/// the edge replicated (DrQ's "pad by replication, then crop at a random offset"):
+/// `out[y][x] = in[clamp(y + dy)][clamp(x + dx)]`.
+pub fn shift_frames(frames: &[f32], size: usize, dx: isize, dy: isize) -> Vec<f32> {
+    let clamp = |v: isize| v.clamp(0, size as isize - 1) as usize;
+    let mut out = Vec::with_capacity(frames.len());
+    for frame in frames.chunks_exact(size * size) {
+        for y in 0..size {
+            let row = &frame[clamp(y as isize + dy) * size..][..size];
+            out.extend((0..size).map(|x| row[clamp(x as isize + dx)]));
+        }
+    }
+    out
 }
 
 /// Collects samples into batch tensors.

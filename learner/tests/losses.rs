@@ -2,10 +2,10 @@
 
 use candle_core::{Device, Tensor};
 use pednav_learner::{
-    Batch, Dsac, DsacConfig, DualReplay, Frame, FrameKind, ReplayConfig, Step, fraction_gradient, load_checkpoint,
-    quantile_huber_loss, save_checkpoint,
+    Batch, Dsac, DsacConfig, DualReplay, Frame, FrameKind, ReplayConfig, Step, acting_files, fraction_gradient,
+    load_acting, load_checkpoint, quantile_huber_loss, save_checkpoint, smaller_mean,
 };
-use pednav_nets::{EncoderKind, NetsConfig, Obs};
+use pednav_nets::{DsacNets, EncoderKind, NetsConfig, Obs};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
@@ -54,6 +54,83 @@ fn fraction_gradient_by_hand() {
     assert_eq!(g.to_vec2::<f32>().unwrap(), vec![vec![0.5, -1.5]]);
 }
 
+#[test]
+fn twin_target_takes_the_distribution_with_the_smaller_mean_per_sample() {
+    // Row 0: means 0.5·0 + 0.5·2 = 1 and 0.5·1 + 0.5·1 = 1 — a tie keeps the first.
+    // Row 1: means 5 and 0.9·0 + 0.1·10 = 1 — the second, though its top quantile is larger.
+    let a = t2(&[&[0.0, 2.0], &[5.0, 5.0]]);
+    let b = t2(&[&[1.0, 1.0], &[0.0, 10.0]]);
+    let widths = t2(&[&[0.5, 0.5], &[0.9, 0.1]]);
+    let picked = smaller_mean(&a, &b, &widths).unwrap();
+    assert_eq!(picked.to_vec2::<f32>().unwrap(), vec![vec![0.0, 2.0], vec![0.0, 10.0]]);
+}
+
+/// With the second critic a copy of the first, twin critics change nothing: the same
+/// losses, the same first critic after the update (own encoders: its gradient comes
+/// from its own loss only), and the second critic updated exactly like the first.
+#[test]
+fn twin_critics_with_equal_critics_reduce_to_one_critic() {
+    let (cfg, nets) = small();
+    let mut rng = ChaCha8Rng::seed_from_u64(11);
+    let batch = state_batch(16, &mut rng);
+    let mut single = Dsac::new(&cfg, &nets, &Device::Cpu, 1).unwrap();
+    let mut twin = Dsac::new(&DsacConfig { twin_critics: true, ..cfg.clone() }, &nets, &Device::Cpu, 1).unwrap();
+    {
+        let t = twin.nets.twin.as_ref().unwrap();
+        t.quantile.store.copy_from(&twin.nets.quantile.store).unwrap();
+        t.target.store.copy_from(&twin.nets.target.store).unwrap();
+    }
+    for _ in 0..2 {
+        let (s, t) = (single.update(&batch).unwrap(), twin.update(&batch).unwrap());
+        for (name, x, y) in [
+            ("critic", s.critic_loss, t.critic_loss),
+            ("policy", s.policy_loss, t.policy_loss),
+            ("fraction", s.fraction_loss, t.fraction_loss),
+            ("q_mean", s.q_mean, t.q_mean),
+        ] {
+            assert!((x - y).abs() <= 1e-5 * x.abs().max(1.0), "{name}: single {x}, twin {y}");
+        }
+    }
+    let close = |a: &pednav_nets::ParamStore, b: &pednav_nets::ParamStore, what: &str| {
+        for ((n, x), (_, y)) in a.vars().iter().zip(b.vars()) {
+            let d =
+                (x.as_tensor() - y.as_tensor()).unwrap().abs().unwrap().max_all().unwrap().to_scalar::<f32>().unwrap();
+            assert!(d <= 1e-5, "{what} `{n}` differs by {d}");
+        }
+    };
+    let pair = twin.nets.twin.as_ref().unwrap();
+    close(&single.nets.quantile.store, &twin.nets.quantile.store, "first critic (single vs twin)");
+    close(&twin.nets.quantile.store, &pair.quantile.store, "second critic vs first");
+    close(&twin.nets.target.store, &pair.target.store, "second target vs first");
+    close(&single.nets.policy.store, &twin.nets.policy.store, "policy (single vs twin)");
+}
+
+/// With a shared encoder the second critic's loss trains the encoder too: after one
+/// update its weights differ from a single critic's update on the same batch (Adam's
+/// first step is lr·sign(g), so they differ exactly where the twin's gradient flips a
+/// sign), while the fraction net, which reads the encoder detached and Z₁ only, moves
+/// identically.
+#[test]
+fn the_twin_critic_trains_a_shared_encoder() {
+    let (cfg, nets) = small();
+    let nets = NetsConfig { shared_encoder: true, ..nets };
+    let batch = state_batch(16, &mut ChaCha8Rng::seed_from_u64(12));
+    let mut single = Dsac::new(&cfg, &nets, &Device::Cpu, 1).unwrap();
+    let mut twin = Dsac::new(&DsacConfig { twin_critics: true, ..cfg.clone() }, &nets, &Device::Cpu, 1).unwrap();
+    assert!(twin.nets.twin.as_ref().unwrap().quantile.encoder.is_none(), "the twin reads the shared encoder");
+    single.update(&batch).unwrap();
+    twin.update(&batch).unwrap();
+    let encoder = |d: &Dsac| -> Vec<f32> {
+        let vars = d.nets.quantile.store.vars();
+        let (_, first) = vars.iter().find(|(n, _)| n.starts_with("enc.")).expect("an encoder parameter");
+        first.flatten_all().unwrap().to_vec1().unwrap()
+    };
+    let (a, b) = (encoder(&single), encoder(&twin));
+    assert!(a.iter().zip(&b).any(|(x, y)| x != y), "the twin's loss did not reach the shared encoder");
+    let fraction = |d: &Dsac| d.nets.fraction.store.vars()[0].1.flatten_all().unwrap().to_vec1::<f32>().unwrap();
+    assert_eq!(fraction(&single), fraction(&twin));
+}
+
 fn state_batch(b: usize, rng: &mut ChaCha8Rng) -> Batch {
     let cfg = ReplayConfig { nonterminal_capacity: 1000, terminal_capacity: 100 };
     let mut replay = DualReplay::new(&cfg, FrameKind::State { dim: 4 }, 1, &Device::Cpu).unwrap();
@@ -78,7 +155,7 @@ fn state_batch(b: usize, rng: &mut ChaCha8Rng) -> Batch {
 
 fn small() -> (DsacConfig, NetsConfig) {
     (
-        DsacConfig { batch_size: 16, warmup: 16, ..Default::default() },
+        DsacConfig { batch_size: 16, warmup: 16, twin_critics: false, ..Default::default() },
         NetsConfig {
             encoder: EncoderKind::Mlp,
             state_dim: 4,
@@ -208,6 +285,51 @@ fn checkpoints_round_trip_bit_exactly_and_bad_ones_change_nothing() {
     assert_eq!(untouched, all_values(&d));
     let err = load_checkpoint(&dir.join("missing"), &mut d).unwrap_err().to_string();
     assert!(err.contains("is this a checkpoint directory"), "{err}");
+
+    // Twin critics round-trip too (second critic, its target and its moments), and a
+    // checkpoint with or without the twin refuses a learner configured the other way.
+    let twin_cfg = DsacConfig { twin_critics: true, ..cfg.clone() };
+    let mut e = Dsac::new(&twin_cfg, &nets, &Device::Cpu, 4).unwrap();
+    e.update(&state_batch(16, &mut rng)).unwrap();
+    let twin_ck = dir.join("twin");
+    save_checkpoint(&twin_ck, &mut e, None, serde_json::Value::Null).unwrap();
+    let mut f = Dsac::new(&twin_cfg, &nets, &Device::Cpu, 5).unwrap();
+    load_checkpoint(&twin_ck, &mut f).unwrap();
+    assert_eq!(all_values(&e), all_values(&f));
+    let batch = state_batch(16, &mut rng);
+    assert_eq!(e.update(&batch).unwrap(), f.update(&batch).unwrap());
+    assert_eq!(all_values(&e), all_values(&f));
+    let mut g = Dsac::new(&cfg, &nets, &Device::Cpu, 6).unwrap();
+    let untouched = all_values(&g);
+    let err = load_checkpoint(&twin_ck, &mut g).unwrap_err().to_string();
+    assert_eq!(untouched, all_values(&g));
+    assert!(err.contains("has a twin critic") && err.contains("twin_critics"), "{err}");
+    let err = load_checkpoint(&ck, &mut f).unwrap_err().to_string();
+    assert!(err.contains("has no twin critic"), "{err}");
+
+    // What a results folder keeps: state.json and the acting networks' files load the
+    // policy into fresh networks; a damaged copy is refused and changes nothing.
+    let kept = dir.join("results");
+    std::fs::create_dir_all(&kept).unwrap();
+    let files = acting_files(&a.nets);
+    assert_eq!(files, ["state.json", "policy.safetensors"]);
+    for file in &files {
+        std::fs::copy(ck.join(file), kept.join(file)).unwrap();
+    }
+    let policy = |n: &DsacNets| -> Vec<Vec<f32>> {
+        n.policy.store.vars().iter().map(|(_, v)| v.flatten_all().unwrap().to_vec1().unwrap()).collect()
+    };
+    let fresh = DsacNets::new(&nets, &Device::Cpu, 9).unwrap();
+    let untouched = policy(&fresh);
+    let mut bytes = std::fs::read(kept.join("policy.safetensors")).unwrap();
+    bytes[100] ^= 1;
+    std::fs::write(kept.join("policy.safetensors"), &bytes).unwrap();
+    assert!(load_acting(&kept, &fresh).unwrap_err().to_string().contains("checksum"));
+    assert_eq!(policy(&fresh), untouched);
+    bytes[100] ^= 1;
+    std::fs::write(kept.join("policy.safetensors"), &bytes).unwrap();
+    load_acting(&kept, &fresh).unwrap();
+    assert_eq!(policy(&fresh), policy(&a.nets));
     let _ = std::fs::remove_dir_all(&dir);
 }
 

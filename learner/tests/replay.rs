@@ -5,7 +5,7 @@
 use std::collections::HashMap;
 
 use candle_core::Device;
-use pednav_learner::{DualReplay, Frame, FrameKind, ReplayConfig, Step, dual_split};
+use pednav_learner::{DualReplay, Frame, FrameKind, ReplayConfig, Step, dual_split, shift_frames};
 use pednav_nets::Obs;
 use proptest::prelude::*;
 use rand::{Rng, SeedableRng};
@@ -215,4 +215,57 @@ fn a_stream_seen_mid_episode_is_ignored_until_its_next_start() {
     assert!(r.push(&step(true)).unwrap());
     assert!(r.push(&step(false)).unwrap());
     assert_eq!(r.nonterminal_len(), 1);
+}
+
+#[test]
+fn random_shift_by_hand() {
+    // 3×3 frame 1..9: dx = 1 reads one column to the right (the edge column repeats),
+    // dy = −1 one row up (the top row repeats).
+    let f: Vec<f32> = (1..=9).map(|v| v as f32).collect();
+    assert_eq!(shift_frames(&f, 3, 1, 0), vec![2., 3., 3., 5., 6., 6., 8., 9., 9.]);
+    assert_eq!(shift_frames(&f, 3, 0, -1), vec![1., 2., 3., 1., 2., 3., 4., 5., 6.]);
+    assert_eq!(shift_frames(&f, 3, 0, 0), f);
+    // Frames of one transition shift together.
+    let tens: Vec<f32> = f.iter().map(|v| v * 10.0).collect();
+    let s = shift_frames(&[f.clone(), tens].concat(), 3, -1, 1);
+    assert_eq!(&s[..9], &[4., 4., 5., 7., 7., 8., 7., 7., 8.]);
+    assert_eq!(&s[9..], &[40., 40., 50., 70., 70., 80., 70., 70., 80.]);
+}
+
+/// With one transition in the replay every sample is that transition: shifted, each
+/// window is the stored one moved by one offset in [−1, 1]² (both frames alike), o_t
+/// and o_{t+1} are still its views, and several offsets occur.
+#[test]
+fn sampled_windows_are_shifted_as_a_whole() {
+    let cfg = ReplayConfig { nonterminal_capacity: 8, terminal_capacity: 2 };
+    let mut r = DualReplay::new(&cfg, FrameKind::Pixels { size: 3 }, 1, &Device::Cpu).unwrap();
+    let frames: [[u8; 9]; 2] = [std::array::from_fn(|i| 10 * i as u8), std::array::from_fn(|i| 100 + 10 * i as u8)];
+    for (t, px) in frames.iter().enumerate() {
+        let step =
+            Step { stream: 0, first: t == 0, frame: Frame::Pixels(px), action: [0.0; 3], reward: 0.0, terminal: false };
+        r.push(&step).unwrap();
+    }
+    let plain = r.sample(64, &mut ChaCha8Rng::seed_from_u64(3)).unwrap();
+    let window =
+        |b: &pednav_learner::Batch| b.window.as_ref().unwrap().flatten_from(2).unwrap().to_vec3::<f32>().unwrap();
+    let stored: Vec<f32> = window(&plain)[0].concat();
+    let shifted = r.sample_shifted(64, 1, &mut ChaCha8Rng::seed_from_u64(3)).unwrap();
+    let (Obs::Pixels { frames: obs, .. }, Obs::Pixels { frames: next, .. }) = (&shifted.obs, &shifted.next_obs) else {
+        panic!("pixel batch")
+    };
+    let (obs, next) = (
+        obs.flatten_from(1).unwrap().to_vec2::<f32>().unwrap(),
+        next.flatten_from(1).unwrap().to_vec2::<f32>().unwrap(),
+    );
+    let mut offsets = std::collections::BTreeSet::new();
+    for (i, w) in window(&shifted).iter().enumerate() {
+        let w = w.concat();
+        let offset = (-1..=1)
+            .flat_map(|dx| (-1..=1).map(move |dy| (dx, dy)))
+            .find(|&(dx, dy)| shift_frames(&stored, 3, dx, dy) == w)
+            .unwrap_or_else(|| panic!("sample {i} is no shift of the stored window: {w:?}"));
+        offsets.insert(offset);
+        assert_eq!((&obs[i][..], &next[i][..]), (&w[..9], &w[9..]), "sample {i}: o_t, o_t+1 are the window's views");
+    }
+    assert!(offsets.len() >= 5, "64 draws from 9 offsets gave only {offsets:?}");
 }

@@ -139,3 +139,28 @@ fn a_tiny_run_can_be_evaluated_and_plotted() {
         .count();
     assert!(same * 10 >= a.len() * 9, "{same} of {} episodes agree across workers and batch sizes", a.len());
 }
+
+/// A committed result is re-evaluated from the policy its folder keeps (no training):
+/// on the first task's start, facing the goal and facing away, the state preset's
+/// final policy reaches the goal every time and stays within 15 of the oracle's
+/// return from the same poses — a random walk is ≈ 200 below it.
+#[test]
+fn a_committed_result_is_re_evaluated_from_its_kept_checkpoint() {
+    let result = workspace_root().join("docs/results/cpu-state/twin-s1");
+    let root = scratch_dir("eval-committed");
+    let starts = root.join("starts.csv");
+    std::fs::write(&starts, "x,y,yaw\n12,7,0\n12,7,180\n").unwrap();
+    let out = root.join("eval");
+    let stdout = ok(Command::new(eval_bin())
+        .args(["--run-dir", result.to_str().unwrap(), "--starts", starts.to_str().unwrap()])
+        .args(["--runs", "5", "--t-max", "400", "--out", out.to_str().unwrap()]));
+    assert!(stdout.contains("start |") && stdout.contains("actions sampled from π"), "{stdout}");
+    let rows = csv_rows(&out.join("table.csv"));
+    for row in rows.iter().filter(|r| r[0] != "mean") {
+        let (mean, success, oracle): (f64, f64, f64) =
+            (row[2].parse().unwrap(), row[4].parse().unwrap(), row[5].parse().unwrap());
+        assert_eq!(success, 1.0, "start {}: {row:?}", row[0]);
+        assert!(mean >= oracle - 15.0, "start {}: return {mean} vs oracle {oracle}", row[0]);
+    }
+    assert_eq!(rows.iter().filter(|r| r[0] != "mean").count(), 2, "{rows:?}");
+}

@@ -168,6 +168,7 @@ fn serve(run_dir: &Path) -> Result<()> {
         }
         None => (1, BTreeMap::new(), 0),
     };
+    let mut first_task_passed: Option<(u64, u64)> = None;
     let mut episode_log = EpisodeLog::open(&dir)?;
     let snapshots = dir.checkpoints().join("curriculum-snapshots");
     std::fs::create_dir_all(&snapshots)?;
@@ -236,11 +237,21 @@ fn serve(run_dir: &Path) -> Result<()> {
                 success: h.success != 0,
             };
             drop(sample);
+            let was_acl = curriculum.scheduler().in_acl_phase();
             let summary = curriculum.report(&outcome)?;
+            decision_steps += h.length as u64;
+            if !was_acl && curriculum.scheduler().in_acl_phase() {
+                // The PassFirstTask gate opened with this episode (NavACL⁺).
+                first_task_passed = Some((curriculum.episodes(), decision_steps));
+                tracing::info!(
+                    episodes = curriculum.episodes(),
+                    decision_steps,
+                    "PassFirstTask passed: ACL phase starts"
+                );
+            }
             if let Some(l) = summary.trained_loss {
                 last_loss = Some(l);
             }
-            decision_steps += h.length as u64;
             episode_log.write(curriculum.episodes(), decision_steps, &h, start, summary.discounted_return)?;
             if curriculum.episodes().is_multiple_of(SNAPSHOT_EVERY_EPISODES) {
                 let path = snapshots.join(format!("ep{:08}-steps{}.json", curriculum.episodes(), decision_steps));
@@ -320,6 +331,10 @@ fn serve(run_dir: &Path) -> Result<()> {
             "t_c": curriculum.scheduler().t_c(),
             "decision_steps": decision_steps,
             "acl_phase": curriculum.scheduler().in_acl_phase(),
+            // When this process saw the PassFirstTask gate open (null if it opened
+            // before a resume, or has not): episodes and decision steps reported so far.
+            "first_task_passed": first_task_passed
+                .map(|(episodes, steps)| serde_json::json!({"episodes": episodes, "decision_steps": steps})),
         }),
     )?;
     tracing::info!(episodes = curriculum.episodes(), "curriculum service stopped; state saved");

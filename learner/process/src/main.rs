@@ -238,7 +238,7 @@ fn main() -> Result<()> {
         // One update when the data allows it.
         if budget_spent.is_none() && !l.refilling() && l.limiter.can_update() {
             let t0 = Instant::now();
-            let batch = l.replay.sample(cfg.dsac.batch_size, &mut l.sample_rng)?;
+            let batch = l.replay.sample_shifted(cfg.dsac.batch_size, cfg.dsac.random_shift, &mut l.sample_rng)?;
             t_sample += t0.elapsed().as_secs_f64();
             let t0 = Instant::now();
             let s = l.dsac.update(&batch)?;

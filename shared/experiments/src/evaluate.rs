@@ -14,7 +14,7 @@ use std::path::Path;
 use std::sync::Arc;
 
 use candle_core::{Device, Tensor};
-use pednav_learner::{Dsac, load_checkpoint};
+use pednav_learner::load_acting;
 use pednav_nets::{DsacNets, NetsConfig, Obs, PolicyStream};
 use pednav_runtime::RunConfig;
 use pednav_sim::draw::{draw_map, enlarge_gray, save_gif, side_by_side};
@@ -78,15 +78,18 @@ struct Running {
     trajectory: Vec<[f32; 2]>,
 }
 
-/// The networks of a run's latest checkpoint, on `device` (checkpoints load on any
-/// device, whichever one wrote them).
-pub fn load_policy(run_dir: &Path, device: &Device) -> Result<(RunConfig, DsacNets)> {
+/// The networks of a run's checkpoint, on `device` (checkpoints load on any device,
+/// whichever one wrote them): the run's latest (`<run>/checkpoints/learner`) unless
+/// `checkpoint` names another checkpoint directory of the same configuration. Only
+/// the acting networks are read ([`load_acting`]), so a results folder that keeps
+/// just those files of its final checkpoint evaluates like the run itself.
+pub fn load_policy(run_dir: &Path, checkpoint: Option<&Path>, device: &Device) -> Result<(RunConfig, DsacNets)> {
     let cfg = RunConfig::load(&run_dir.join("config.toml"))
         .map_err(|e| ExperimentError::file(&run_dir.join("config.toml"), e))?;
-    let ckpt = run_dir.join("checkpoints").join("learner");
-    let mut dsac = Dsac::new(&cfg.dsac, &cfg.nets, device, cfg.seed).map_err(|e| ExperimentError::file(&ckpt, e))?;
-    load_checkpoint(&ckpt, &mut dsac).map_err(|e| ExperimentError::file(&ckpt, e))?;
-    Ok((cfg, dsac.nets))
+    let ckpt = checkpoint.map_or_else(|| run_dir.join("checkpoints").join("learner"), Path::to_path_buf);
+    let nets = DsacNets::new(&cfg.nets, device, cfg.seed).map_err(|e| ExperimentError::file(&ckpt, e))?;
+    load_acting(&ckpt, &nets).map_err(|e| ExperimentError::file(&ckpt, e))?;
+    Ok((cfg, nets))
 }
 
 impl Evaluator {

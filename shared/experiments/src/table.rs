@@ -197,6 +197,71 @@ pub fn write_results_csv(results: &[EpisodeResult], path: &Path) -> Result<()> {
     std::fs::write(path, s).map_err(|e| ExperimentError::file(path, e))
 }
 
+/// What a Table III row needs from one evaluation (`table.csv` of `pednav-eval`).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct EvalSummary {
+    /// Avg.Int: mean of the per-point means over points 0–7.
+    pub avg_int: f64,
+    /// Avg.Ext: mean of the per-point means over points 8–13.
+    pub avg_ext: f64,
+    /// Fraction of all episodes that reached the goal.
+    pub success: f64,
+    /// Episodes evaluated.
+    pub episodes: usize,
+    /// The oracle's Avg.Int and Avg.Ext from the same starts, when the table has them.
+    pub oracle: Option<(f64, f64)>,
+}
+
+impl EvalSummary {
+    /// Read the `table.csv` a validation-point evaluation wrote.
+    pub fn read(path: &Path) -> Result<EvalSummary> {
+        let text = std::fs::read_to_string(path).map_err(|e| ExperimentError::file(path, e))?;
+        let bad = |m: String| ExperimentError::file(path, m);
+        let mut lines = text.lines();
+        if lines.next() != Some("point,episodes,mean,std,success_rate,oracle") {
+            return Err(
+                bad("not the table.csv of a validation-point evaluation (pednav-eval without --starts)".into()),
+            );
+        }
+        let (mut avg_int, mut avg_ext, mut episodes, mut successes) = (None, None, 0usize, 0.0);
+        let mut oracle: [Vec<f64>; 2] = [Vec::new(), Vec::new()];
+        let mut points = 0;
+        for line in lines {
+            let f: Vec<&str> = line.split(',').collect();
+            let num = |i: usize| -> Result<f64> {
+                f.get(i).and_then(|v| v.parse().ok()).ok_or_else(|| bad(format!("bad value in column {i} of `{line}`")))
+            };
+            match f[0] {
+                "avg_int" => avg_int = Some(num(2)?),
+                "avg_ext" => avg_ext = Some(num(2)?),
+                point => {
+                    let point: u32 = point.parse().map_err(|_| bad(format!("bad point in `{line}`")))?;
+                    let n = num(1)? as usize;
+                    episodes += n;
+                    successes += num(4)? * n as f64;
+                    if let Ok(o) = num(5) {
+                        oracle[usize::from(!INTERIOR.contains(&point))].push(o);
+                    }
+                    points += 1;
+                }
+            }
+        }
+        let (Some(avg_int), Some(avg_ext)) = (avg_int, avg_ext) else {
+            return Err(bad("no avg_int / avg_ext rows".into()));
+        };
+        let mean_of = |v: &Vec<f64>| v.iter().sum::<f64>() / v.len() as f64;
+        let oracle = (oracle[0].len() + oracle[1].len() == points && !oracle[0].is_empty() && !oracle[1].is_empty())
+            .then(|| (mean_of(&oracle[0]), mean_of(&oracle[1])));
+        Ok(EvalSummary { avg_int, avg_ext, success: successes / episodes.max(1) as f64, episodes, oracle })
+    }
+}
+
+/// The share of the gap between a random walk and the oracle that `value` closes:
+/// 0 at the random walk's return, 1 at the oracle's.
+pub fn gap_closed(value: f64, random: f64, oracle: f64) -> f64 {
+    (value - random) / (oracle - random)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -243,5 +308,25 @@ mod tests {
             !text.contains("Avg.Int") && text.contains("start |") && text.contains("mean over them: -13.3"),
             "{text}"
         );
+    }
+
+    #[test]
+    fn summaries_read_back_what_the_table_wrote() {
+        let results = vec![r(0, -10.0, true), r(0, -20.0, false), r(3, -30.0, true), r(9, -50.0, false)];
+        let oracle = BTreeMap::from([(0, 4.0), (3, -2.0), (9, -6.0)]);
+        let dir = std::env::temp_dir().join(format!("pednav-summary-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let path = dir.join("table.csv");
+        aggregate(&results, &oracle, Rows::ValidationPoints).write_csv(&path).unwrap();
+        let s = EvalSummary::read(&path).unwrap();
+        // Avg.Int = mean(−15, −30) = −22.5; Avg.Ext = −50; 2 of 4 reached the goal;
+        // the oracle's Avg.Int = mean(4, −2) = 1, Avg.Ext = −6.
+        assert_eq!((s.avg_int, s.avg_ext, s.success, s.episodes), (-22.5, -50.0, 0.5, 4));
+        assert_eq!(s.oracle, Some((1.0, -6.0)));
+        // Halfway between a random walk at −45 and that oracle.
+        assert!((gap_closed(-22.0, -45.0, 1.0) - 0.5).abs() < 1e-12);
+        aggregate(&results, &oracle, Rows::StartList).write_csv(&path).unwrap();
+        assert!(EvalSummary::read(&path).unwrap_err().to_string().contains("without --starts"));
+        let _ = std::fs::remove_dir_all(&dir);
     }
 }

@@ -23,7 +23,7 @@ pub use device::{CUDA_BUILT, DeviceSpec};
 pub use encoder::{Encoder, Obs, temporal_plan};
 pub use error::{NetError, Result};
 pub use heads::{CholeskyGaussian, FractionNet, Fractions, PolicyNet, PolicySample, QuantileGrid, QuantileNet};
-pub use nets::{DsacNets, OnlineFeatures, TransitionFeatures};
+pub use nets::{DsacNets, OnlineFeatures, TransitionFeatures, TwinCritic};
 pub use optim::{AdamW, AdamWConfig, StepOutcome};
 pub use params::ParamStore;
 pub use runtime::init_cpu_runtime;

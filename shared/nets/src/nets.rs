@@ -6,6 +6,9 @@
 //! online encoder and the policy and fraction heads read its features detached, so
 //! only the critic loss trains it. The target quantile net always mirrors the
 //! quantile net's architecture (encoder included) and starts as an exact copy.
+//! An optional second critic ([`TwinCritic`], DSAC's twin critics) has its own
+//! encoder when encoders are not shared and otherwise reads the quantile net's
+//! features (so both critic losses train the shared encoder); its target mirrors it.
 
 use candle_core::{Device, Tensor};
 use rand::SeedableRng;
@@ -39,6 +42,15 @@ pub struct TransitionFeatures {
     pub next_fraction: Tensor,
 }
 
+/// The second quantile net of twin critics and its Polyak target.
+#[derive(Clone)]
+pub struct TwinCritic {
+    /// Z₂(s, a, τ); without an encoder of its own when encoders are shared.
+    pub quantile: QuantileNet,
+    /// Polyak-averaged copy of `quantile`.
+    pub target: QuantileNet,
+}
+
 /// Policy, fraction-proposal, quantile and target quantile networks.
 #[derive(Clone)]
 pub struct DsacNets {
@@ -52,6 +64,8 @@ pub struct DsacNets {
     pub quantile: QuantileNet,
     /// Polyak-averaged copy of `quantile`.
     pub target: QuantileNet,
+    /// The second critic, when twin critics are on ([`DsacNets::with_twin_critic`]).
+    pub twin: Option<TwinCritic>,
 }
 
 impl DsacNets {
@@ -70,7 +84,25 @@ impl DsacNets {
         let quantile = QuantileNet::new("quantile", cfg, true, feature_dim, device, &mut rng(3))?;
         let target = QuantileNet::new("target_quantile", cfg, true, feature_dim, device, &mut rng(3))?;
         target.store.copy_from(&quantile.store)?;
-        Ok(DsacNets { cfg: cfg.clone(), policy, fraction, quantile, target })
+        Ok(DsacNets { cfg: cfg.clone(), policy, fraction, quantile, target, twin: None })
+    }
+
+    /// Add the second critic of twin critics (from its own stream of `seed`, so the
+    /// other networks are the same with and without it).
+    pub fn with_twin_critic(mut self, seed: u64) -> Result<DsacNets> {
+        let own = !self.cfg.shared_encoder;
+        let feature_dim = feature_dim(&self.cfg);
+        let device = self.quantile.store.device().clone();
+        let rng = || {
+            let mut r = ChaCha8Rng::seed_from_u64(seed);
+            r.set_stream(4);
+            r
+        };
+        let quantile = QuantileNet::new("quantile2", &self.cfg, own, feature_dim, &device, &mut rng())?;
+        let target = QuantileNet::new("target_quantile2", &self.cfg, own, feature_dim, &device, &mut rng())?;
+        target.store.copy_from(&quantile.store)?;
+        self.twin = Some(TwinCritic { quantile, target });
+        Ok(self)
     }
 
     /// Features of `obs` for the three online heads (shared encoder: computed once,
@@ -149,9 +181,13 @@ impl DsacNets {
         self.policy.encoder.as_ref().or(self.quantile.encoder.as_ref()).expect("the quantile net always has an encoder")
     }
 
-    /// Every parameter store, in checkpoint order.
-    pub fn stores(&self) -> [&ParamStore; 4] {
-        [&self.policy.store, &self.fraction.store, &self.quantile.store, &self.target.store]
+    /// Every parameter store, in checkpoint order (the twin critic's last).
+    pub fn stores(&self) -> Vec<&ParamStore> {
+        let mut stores = vec![&self.policy.store, &self.fraction.store, &self.quantile.store, &self.target.store];
+        if let Some(twin) = &self.twin {
+            stores.extend([&twin.quantile.store, &twin.target.store]);
+        }
+        stores
     }
 
     /// What the actors need: the policy store plus, with a shared encoder, the

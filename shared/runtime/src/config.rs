@@ -110,9 +110,26 @@ pub struct RunConfig {
 impl RunConfig {
     /// Read and validate a config file; relative scene paths resolve against the file's folder.
     pub fn load(path: &Path) -> Result<RunConfig> {
+        RunConfig::load_with(path, &[])
+    }
+
+    /// [`RunConfig::load`] with `overrides` applied to the file before it is read:
+    /// each is `section.field=value` with a TOML value (`dsac.twin_critics=true`,
+    /// `runtime.max_env_steps=500000`, `curriculum.variant=navacl`; a bare word is a
+    /// string). The result is validated like a file that says the same.
+    pub fn load_with(path: &Path, overrides: &[String]) -> Result<RunConfig> {
         let text = std::fs::read_to_string(path).map_err(|e| RuntimeError::file(path, format!("cannot read: {e}")))?;
-        let mut cfg: RunConfig =
-            toml::from_str(&text).map_err(|e| RuntimeError::file(path, format!("not a valid run config: {e}")))?;
+        let invalid = |e: &dyn std::fmt::Display| RuntimeError::file(path, format!("not a valid run config: {e}"));
+        let mut cfg: RunConfig = if overrides.is_empty() {
+            toml::from_str(&text).map_err(|e| invalid(&e))?
+        } else {
+            let mut table: toml::Table = toml::from_str(&text).map_err(|e| invalid(&e))?;
+            for o in overrides {
+                apply_override(&mut table, o).map_err(|m| RuntimeError::file(path, format!("--set {o}: {m}")))?;
+            }
+            let described = format!("with --set {}", overrides.join(" "));
+            RunConfig::deserialize(table).map_err(|e| invalid(&format!("{described}: {e}")))?
+        };
         if let Some(scene) = cfg.scene.as_mut().filter(|s| s.is_relative()) {
             let base = path.parent().unwrap_or(Path::new("."));
             let candidate = base.join(&*scene);
@@ -167,8 +184,22 @@ impl RunConfig {
                         &format!("must equal sim.image_size = {}", self.sim.image_size),
                     );
                 }
+                if self.dsac.random_shift * 4 > self.nets.image_size {
+                    return bad(
+                        "dsac.random_shift",
+                        self.dsac.random_shift.to_string(),
+                        &format!("must be at most a quarter of the image side ({})", self.nets.image_size / 4),
+                    );
+                }
             }
             ObsMode::StateDebug => {
+                if self.dsac.random_shift != 0 {
+                    return bad(
+                        "dsac.random_shift",
+                        self.dsac.random_shift.to_string(),
+                        "shifts pixel frames: must be 0 for state observations",
+                    );
+                }
                 if self.nets.encoder != EncoderKind::Mlp {
                     return bad("nets.encoder", format!("{:?}", self.nets.encoder), "state observations need \"mlp\"");
                 }
@@ -262,6 +293,28 @@ impl RunConfig {
     }
 }
 
+/// Set `key.path=value` in `table` (see [`RunConfig::load_with`]).
+fn apply_override(table: &mut toml::Table, assignment: &str) -> std::result::Result<(), String> {
+    let (key, raw) = assignment.split_once('=').ok_or("expected section.field=value")?;
+    let path: Vec<&str> = key.split('.').map(str::trim).collect();
+    if path.iter().any(|p| p.is_empty()) {
+        return Err(format!("`{key}` is not a dotted field name such as dsac.batch_size"));
+    }
+    let raw = raw.trim();
+    let value = toml::from_str::<toml::Table>(&format!("v = {raw}"))
+        .ok()
+        .and_then(|mut t| t.remove("v"))
+        .unwrap_or_else(|| toml::Value::String(raw.to_string()));
+    let (last, sections) = path.split_last().expect("split gives at least one part");
+    let mut at = table;
+    for section in sections {
+        let entry = at.entry(section.to_string()).or_insert_with(|| toml::Value::Table(Default::default()));
+        at = entry.as_table_mut().ok_or_else(|| format!("`{section}` is a value, not a section"))?;
+    }
+    at.insert(last.to_string(), value);
+    Ok(())
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -302,9 +355,17 @@ mod tests {
         cfg.nets.state_dim = STATE_OBS_DIM;
         cfg.nets.history = 1;
         cfg.validate("x").unwrap();
+        cfg.dsac.random_shift = 2;
+        let e = cfg.validate("x").unwrap_err().to_string();
+        assert!(e.contains("dsac.random_shift") && e.contains("state"), "{e}");
+        cfg.dsac.random_shift = 0;
         cfg.nets.history = 8;
         let e = cfg.validate("x").unwrap_err().to_string();
         assert!(e.contains("nets.history") && e.contains("history") && e.contains("8") && e.contains("state"), "{e}");
+        let mut cfg = RunConfig::default();
+        cfg.dsac.random_shift = 22;
+        let e = cfg.validate("x").unwrap_err().to_string();
+        assert!(e.contains("dsac.random_shift") && e.contains("21"), "{e}");
     }
 
     #[test]
@@ -312,5 +373,28 @@ mod tests {
         assert!(toml::from_str::<RunConfig>("[runtime]\nenvs = 3\n").is_err());
         let e = toml::from_str::<RunConfig>("[curriculum]\nvariant = \"navacl_plus_sideways\"\n").unwrap_err();
         assert!(e.to_string().contains("variant"), "{e}");
+    }
+
+    #[test]
+    fn overrides_set_typed_values_and_name_what_is_wrong() {
+        let dir = std::env::temp_dir().join(format!("pednav-config-set-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let path = dir.join("base.toml");
+        std::fs::write(&path, "seed = 4\n[dsac]\nbatch_size = 32\nwarmup = 100\n").unwrap();
+        let set = |o: &[&str]| RunConfig::load_with(&path, &o.iter().map(|s| s.to_string()).collect::<Vec<_>>());
+        let cfg =
+            set(&["dsac.twin_critics=true", "runtime.max_env_steps = 5000", "curriculum.variant=navacl"]).unwrap();
+        assert!(cfg.dsac.twin_critics);
+        assert_eq!((cfg.runtime.max_env_steps, cfg.dsac.batch_size, cfg.seed), (5000, 32, 4));
+        assert_eq!(cfg.curriculum.variant, pednav_curriculum::Variant::NavAcl);
+        let e = set(&["dsac.batch_sise=3"]).unwrap_err().to_string();
+        assert!(e.contains("batch_sise") && e.contains("base.toml"), "{e}");
+        let e = set(&["dsac.warmup=10"]).unwrap_err().to_string();
+        assert!(e.contains("warmup") && e.contains("10"), "{e}");
+        let e = set(&["dsac"]).unwrap_err().to_string();
+        assert!(e.contains("--set dsac") && e.contains("section.field=value"), "{e}");
+        let e = set(&["seed.x=1"]).unwrap_err().to_string();
+        assert!(e.contains("`seed` is a value"), "{e}");
+        let _ = std::fs::remove_dir_all(&dir);
     }
 }

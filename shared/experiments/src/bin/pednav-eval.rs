@@ -4,6 +4,8 @@
 //! pednav-eval --run-dir runs/X                       # 14 points × 8 yaws × 10 runs, T_max 2000, learned policy (mode)
 //! pednav-eval --run-dir runs/X --workers 2           # the same over 2 processes
 //! pednav-eval --run-dir runs/X --starts starts.csv   # any start list (x,y,yaw in degrees)
+//! pednav-eval --run-dir docs/results/R --out /tmp/R  # a committed result, re-evaluated
+//! pednav-eval --run-dir runs/X --checkpoint DIR      # another checkpoint of the same run
 //! pednav-eval --policy random --runs 2               # the random-walk baseline (no run needed)
 //! pednav-eval --policy oracle --runs 1               # the planner, an upper reference
 //! pednav-eval --run-dir runs/X --gif 3:180:0         # also a GIF of point 3, yaw 180°, run 0
@@ -58,6 +60,10 @@ struct Cli {
     /// Run directory whose latest checkpoint and config are evaluated (required for `--policy learned`).
     #[arg(long)]
     run_dir: Option<PathBuf>,
+    /// Checkpoint directory to evaluate instead of the run's latest
+    /// (`<run-dir>/checkpoints/learner`); it must match the run's `config.toml`.
+    #[arg(long, requires = "run_dir")]
+    checkpoint: Option<PathBuf>,
     /// Which policy acts.
     #[arg(long, value_enum, default_value_t = PolicyArg::Learned)]
     policy: PolicyArg,
@@ -123,7 +129,7 @@ fn kind(cli: &Cli) -> PolicyKind {
 fn setup(cli: &Cli) -> Result<(RunConfig, Option<(pednav_nets::NetsConfig, pednav_nets::DsacNets)>)> {
     match (&cli.run_dir, cli.policy) {
         (Some(dir), PolicyArg::Learned) => {
-            let (cfg, nets) = load_policy(dir, &cli.device.open()?)?;
+            let (cfg, nets) = load_policy(dir, cli.checkpoint.as_deref(), &cli.device.open()?)?;
             let nc = cfg.nets.clone();
             Ok((cfg, Some((nc, nets))))
         }
@@ -167,9 +173,14 @@ fn main() -> Result<()> {
     }
 
     let policy_name = format!("{:?}", cli.policy).to_lowercase();
+    // Another checkpoint than the run's latest gets its own folder, named after it.
+    let folder = match &cli.checkpoint {
+        Some(c) => format!("{policy_name}-{}", c.file_name().map_or("checkpoint".into(), |n| n.to_string_lossy())),
+        None => policy_name.clone(),
+    };
     let out = cli.out.clone().unwrap_or_else(|| match &cli.run_dir {
-        Some(d) => d.join("eval").join(&policy_name),
-        None => PathBuf::from("eval").join(&policy_name),
+        Some(d) => d.join("eval").join(&folder),
+        None => PathBuf::from("eval").join(&folder),
     });
     std::fs::create_dir_all(&out).with_context(|| format!("creating {}", out.display()))?;
     eprintln!(
@@ -216,8 +227,9 @@ fn main() -> Result<()> {
     let rows = if cli.starts.is_some() { table::Rows::StartList } else { table::Rows::ValidationPoints };
     let t = table::aggregate(&results, &oracle, rows);
     let title = format!(
-        "{} — {policy_name} policy{}, {} episodes, T_max {}",
+        "{}{} — {policy_name} policy{}, {} episodes, T_max {}",
         cli.run_dir.as_ref().map_or("no run".into(), |d| d.display().to_string()),
+        cli.checkpoint.as_ref().map_or(String::new(), |c| format!(" (checkpoint {})", c.display())),
         action_label(&cli),
         results.len(),
         cli.t_max
@@ -269,6 +281,9 @@ fn run_workers(cli: &Cli, out: &Path) -> Result<Vec<EpisodeResult>> {
         }
         if let Some(s) = &cli.starts {
             cmd.arg("--starts").arg(s);
+        }
+        if let Some(c) = &cli.checkpoint {
+            cmd.arg("--checkpoint").arg(c);
         }
         cmd.args(["--mode", &format!("{:?}", cli.mode).to_lowercase()]);
         cmd.args(["--policy", &format!("{:?}", cli.policy).to_lowercase()])

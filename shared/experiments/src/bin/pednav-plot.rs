@@ -5,6 +5,8 @@
 //! pednav-plot curriculum --run-dir runs/X      # Fig. 4 over time, from the curriculum snapshots
 //! pednav-plot compare --group "TCN=runs/a,runs/b" --group "FR=runs/c,runs/d" --out cmp.png
 //! pednav-plot all --run-dir runs/X             # curves + curriculum
+//! pednav-plot table --group "TCN=runs/a,runs/b" --random eval/random --out table.md
+//!                                              # Table III layout from the runs' evaluations
 //! ```
 //! Training curves come from `metrics/episodes.csv` (one row per episode, written
 //! by the curriculum service).
@@ -65,6 +67,21 @@ enum Cmd {
         /// Moving-average window in episodes (per run, before averaging).
         #[arg(long, default_value_t = 50)]
         window: usize,
+    },
+    /// Table III layout: Avg.Int, Avg.Ext and success per group of runs (mean ± std
+    /// over its runs), beside the random walk and the oracle, with the share of the
+    /// random→oracle gap each closes. Reads each run's `eval/learned/table.csv`
+    /// (written by `pednav-eval`); a RUN may also be an evaluation folder or a table.csv.
+    Table {
+        /// LABEL=RUN[,RUN…] (repeatable; one row each).
+        #[arg(long, required = true)]
+        group: Vec<String>,
+        /// The random walk's evaluation (`pednav-eval --policy random`): folder or table.csv.
+        #[arg(long)]
+        random: Option<PathBuf>,
+        /// Also write the table (Markdown) here.
+        #[arg(long)]
+        out: Option<PathBuf>,
     },
     /// `curves` and (when snapshots exist) `curriculum`.
     All {
@@ -193,6 +210,90 @@ fn curriculum(run: &Path, out: &Path, max: usize) -> Result<()> {
     Ok(())
 }
 
+/// `table.csv` of an evaluation given as a run directory, an evaluation folder or the file.
+fn eval_table(path: &Path) -> PathBuf {
+    if path.is_file() {
+        path.to_path_buf()
+    } else if path.join("table.csv").is_file() {
+        path.join("table.csv")
+    } else {
+        path.join("eval").join("learned").join("table.csv")
+    }
+}
+
+/// Mean and population std.
+fn mean_std(v: &[f64]) -> (f64, f64) {
+    let m = v.iter().sum::<f64>() / v.len() as f64;
+    (m, (v.iter().map(|x| (x - m).powi(2)).sum::<f64>() / v.len() as f64).sqrt())
+}
+
+fn table(groups: &[String], random: Option<&Path>) -> Result<String> {
+    use pednav_experiments::table::{EvalSummary, gap_closed};
+    use std::fmt::Write as _;
+    let read = |p: &Path| EvalSummary::read(&eval_table(p)).map_err(anyhow::Error::from);
+    let random = random.map(read).transpose()?;
+    let mut rows = Vec::new();
+    let mut oracle = None;
+    for g in groups {
+        let (label, runs) =
+            g.split_once('=').with_context(|| format!("--group expects LABEL=RUN[,RUN…], got `{g}`"))?;
+        let runs: Vec<&str> = runs.split(',').filter(|s| !s.is_empty()).collect();
+        if runs.is_empty() {
+            bail!("--group {label}: no runs");
+        }
+        let evals: Vec<EvalSummary> = runs.iter().map(|r| read(Path::new(r))).collect::<Result<_>>()?;
+        oracle = oracle.or_else(|| evals.iter().find_map(|e| e.oracle));
+        rows.push((label.to_string(), evals));
+    }
+    let pm = |v: &[f64]| {
+        let (m, s) = mean_std(v);
+        if v.len() > 1 { format!("{m:.1} ± {s:.1}") } else { format!("{m:.1}") }
+    };
+    let gap = |v: f64, which: usize| match (random, oracle) {
+        (Some(r), Some(o)) => {
+            let (rv, ov) = if which == 0 { (r.avg_int, o.0) } else { (r.avg_ext, o.1) };
+            format!("{:.2}", gap_closed(v, rv, ov))
+        }
+        _ => "—".into(),
+    };
+    let mut s = String::new();
+    let _ = writeln!(
+        s,
+        "| variant | runs | Avg.Int | Avg.Ext | success | Int gap closed | Ext gap closed | Avg.Int / Avg.Ext per run |"
+    );
+    let _ = writeln!(s, "|---|---|---|---|---|---|---|---|");
+    for (label, evals) in &rows {
+        let ints: Vec<f64> = evals.iter().map(|e| e.avg_int).collect();
+        let exts: Vec<f64> = evals.iter().map(|e| e.avg_ext).collect();
+        let success = evals.iter().map(|e| e.success).sum::<f64>() / evals.len() as f64;
+        let per_run: Vec<String> = evals.iter().map(|e| format!("{:.1} / {:.1}", e.avg_int, e.avg_ext)).collect();
+        let _ = writeln!(
+            s,
+            "| {label} | {} | {} | {} | {:.0} % | {} | {} | {} |",
+            evals.len(),
+            pm(&ints),
+            pm(&exts),
+            100.0 * success,
+            gap(mean_std(&ints).0, 0),
+            gap(mean_std(&exts).0, 1),
+            per_run.join(", ")
+        );
+    }
+    if let Some(r) = random {
+        let _ = writeln!(
+            s,
+            "| random walk | — | {:.1} | {:.1} | {:.0} % | 0 | 0 | |",
+            r.avg_int,
+            r.avg_ext,
+            100.0 * r.success
+        );
+    }
+    if let Some((oi, oe)) = oracle {
+        let _ = writeln!(s, "| oracle | — | {oi:.1} | {oe:.1} | — | 1 | 1 | |");
+    }
+    Ok(s)
+}
+
 fn compare(groups: &[String], out: &Path, window: usize) -> Result<()> {
     let mut series = Vec::new();
     for (gi, g) in groups.iter().enumerate() {
@@ -253,6 +354,14 @@ fn main() -> Result<()> {
             curriculum(&run_dir, &out.unwrap_or_else(|| run_dir.join("plots").join("curriculum_snapshots.png")), max)
         }
         Cmd::Compare { group, out, window } => compare(&group, &out, window),
+        Cmd::Table { group, random, out } => {
+            let text = table(&group, random.as_deref())?;
+            print!("{text}");
+            if let Some(out) = out {
+                std::fs::write(&out, &text).with_context(|| format!("writing {}", out.display()))?;
+            }
+            Ok(())
+        }
         Cmd::All { run_dir } => {
             curves(&run_dir, &run_dir.join("plots"), 50)?;
             let cfg = RunConfig::load(&run_dir.join("config.toml"))?;

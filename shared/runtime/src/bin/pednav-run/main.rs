@@ -23,7 +23,7 @@ use std::time::{Duration, Instant};
 use anyhow::{Context, Result, bail};
 
 mod bench;
-use clap::{Parser, Subcommand};
+use clap::{Args, Parser, Subcommand};
 use pednav_nets::DeviceSpec;
 use pednav_runtime::messages::process_kind;
 use pednav_runtime::{Ipc, RunConfig, RunDir, StopFlag, run_prefix};
@@ -38,36 +38,7 @@ struct Cli {
 #[derive(Subcommand)]
 enum Cmd {
     /// Start (or resume) a run: curriculum service, learner and N actors.
-    Launch {
-        /// Number of actor processes.
-        #[arg(long, default_value_t = 2)]
-        actors: u32,
-        /// Config file (TOML). Required for a new run; omit it to resume RUN_DIR.
-        #[arg(long)]
-        config: Option<PathBuf>,
-        /// Run directory (default: runs/<config name>-<unix time>). An existing one is resumed.
-        #[arg(long)]
-        run_dir: Option<PathBuf>,
-        /// Override the config's seed (new runs only).
-        #[arg(long)]
-        seed: Option<u64>,
-        /// Folder holding pednav-actor, pednav-learner and pednav-curriculum (default: next to this binary).
-        #[arg(long)]
-        bin_dir: Option<PathBuf>,
-        /// Learner compute threads (default: all cores).
-        #[arg(long)]
-        learner_threads: Option<usize>,
-        /// Simulator instances per actor (default: the config's `runtime.envs_per_actor`).
-        #[arg(long)]
-        envs: Option<usize>,
-        /// Where the learner trains: cpu, cuda or cuda:N (default: the config's
-        /// `runtime.device`). CUDA needs the binaries of `deploy/build_cuda.sh`.
-        #[arg(long)]
-        device: Option<DeviceSpec>,
-        /// Where the actors run policy inference (default: the config's `runtime.actor_device`).
-        #[arg(long)]
-        actor_device: Option<DeviceSpec>,
-    },
+    Launch(Launch),
     /// Measure the runtime: step-stream throughput, weights latency, whole-system env steps/s.
     #[command(subcommand)]
     Bench(bench::Bench),
@@ -75,6 +46,9 @@ enum Cmd {
     Check {
         /// Config file (TOML).
         config: PathBuf,
+        /// Override one config field, `section.field=value` (repeatable), as `launch --set`.
+        #[arg(long = "set", value_name = "FIELD=VALUE")]
+        overrides: Vec<String>,
     },
 }
 
@@ -82,8 +56,8 @@ fn main() -> Result<()> {
     pednav_runtime::init_logging();
     match Cli::parse().command {
         Cmd::Bench(b) => bench::run(b),
-        Cmd::Check { config } => {
-            let cfg = RunConfig::load(&config)?;
+        Cmd::Check { config, overrides } => {
+            let cfg = RunConfig::load_with(&config, &overrides)?;
             check_devices(cfg.runtime.device, cfg.runtime.actor_device).with_context(|| {
                 format!("{}: the config is valid, but its devices cannot be used", config.display())
             })?;
@@ -91,9 +65,7 @@ fn main() -> Result<()> {
             eprintln!("{}: valid", config.display());
             Ok(())
         }
-        Cmd::Launch { actors, config, run_dir, seed, bin_dir, learner_threads, envs, device, actor_device } => {
-            launch(Launch { actors, config, run_dir, seed, bin_dir, learner_threads, envs, device, actor_device })
-        }
+        Cmd::Launch(args) => launch(args),
     }
 }
 
@@ -194,15 +166,40 @@ fn pid_alive(pid: i32) -> bool {
 }
 
 /// Arguments of `launch`.
+#[derive(Args)]
 struct Launch {
+    /// Number of actor processes.
+    #[arg(long, default_value_t = 2)]
     actors: u32,
+    /// Config file (TOML). Required for a new run; omit it to resume RUN_DIR.
+    #[arg(long)]
     config: Option<PathBuf>,
+    /// Run directory (default: runs/<config name>-<unix time>). An existing one is resumed.
+    #[arg(long)]
     run_dir: Option<PathBuf>,
+    /// Override the config's seed (new runs only).
+    #[arg(long)]
     seed: Option<u64>,
+    /// Override one config field, `section.field=value` (repeatable; new runs only;
+    /// the run directory's config.toml records the result), e.g.
+    /// `--set dsac.twin_critics=true --set runtime.max_env_steps=500000`.
+    #[arg(long = "set", value_name = "FIELD=VALUE")]
+    overrides: Vec<String>,
+    /// Folder holding pednav-actor, pednav-learner and pednav-curriculum (default: next to this binary).
+    #[arg(long)]
     bin_dir: Option<PathBuf>,
+    /// Learner compute threads (default: all cores).
+    #[arg(long)]
     learner_threads: Option<usize>,
+    /// Simulator instances per actor (default: the config's `runtime.envs_per_actor`).
+    #[arg(long)]
     envs: Option<usize>,
+    /// Where the learner trains: cpu, cuda or cuda:N (default: the config's
+    /// `runtime.device`). CUDA needs the binaries of `deploy/build_cuda.sh`.
+    #[arg(long)]
     device: Option<DeviceSpec>,
+    /// Where the actors run policy inference (default: the config's `runtime.actor_device`).
+    #[arg(long)]
     actor_device: Option<DeviceSpec>,
 }
 
@@ -221,7 +218,8 @@ fn check_devices(learner: DeviceSpec, actors: DeviceSpec) -> Result<()> {
 }
 
 fn launch(args: Launch) -> Result<()> {
-    let Launch { actors, config, run_dir, seed, bin_dir, learner_threads, envs, device, actor_device } = args;
+    let Launch { actors, config, run_dir, seed, overrides, bin_dir, learner_threads, envs, device, actor_device } =
+        args;
     if let Some(m) = envs
         && (m == 0 || m > 4096)
     {
@@ -233,7 +231,7 @@ fn launch(args: Launch) -> Result<()> {
     // 1. Config and run directory: everything is checked before any process starts.
     let (cfg, run_dir) = match (config, run_dir) {
         (Some(path), run_dir) => {
-            let mut cfg = RunConfig::load(&path)?;
+            let mut cfg = RunConfig::load_with(&path, &overrides)?;
             if let Some(s) = seed {
                 cfg.seed = s;
             }
@@ -249,8 +247,8 @@ fn launch(args: Launch) -> Result<()> {
             if !path.exists() {
                 bail!("{} has no config.toml: pass --config FILE to start a new run there", dir.display());
             }
-            if seed.is_some() {
-                bail!("--seed only applies to new runs; {} already has its config", dir.display());
+            if seed.is_some() || !overrides.is_empty() {
+                bail!("--seed and --set only apply to new runs; {} already has its config", dir.display());
             }
             (RunConfig::load(&path)?, dir)
         }
