@@ -6,9 +6,8 @@
 //! per actor incarnation, no sequence gaps); weights the learner published
 //! reached the actor and were used; tasks came from the curriculum service; an
 //! actor killed with SIGKILL is replaced and training continues; a stop writes a
-//! final checkpoint and a restart resumes from it; and that the loop learns: the
-//! state preset (two actors) passes the curriculum's first task within a fixed
-//! env-step budget. Only watchdogs — no timing assertions.
+//! final checkpoint and a restart resumes from it. Only watchdogs — no timing
+//! assertions.
 
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
@@ -30,12 +29,8 @@ fn bin_dir() -> PathBuf {
     paths[0].parent().unwrap().to_path_buf()
 }
 
-/// `deploy/run_local.sh` with one actor unless `extra` says `--actors`.
 fn run_local(run_dir: &Path, extra: &[&str]) -> Child {
-    let mut args = vec!["--run-dir", run_dir.to_str().unwrap()];
-    if !extra.contains(&"--actors") {
-        args.extend(["--actors", "1"]);
-    }
+    let mut args = vec!["--actors", "1", "--run-dir", run_dir.to_str().unwrap()];
     args.extend_from_slice(extra);
     Command::new(workspace_root().join("deploy/run_local.sh"))
         .args(&args)
@@ -58,18 +53,13 @@ fn num(v: &Value, key: &str) -> u64 {
 }
 
 /// Wait until `cond` holds, failing with `what` and the logs after the watchdog.
-fn wait_for<T>(run_dir: &Path, what: &str, cond: impl FnMut() -> Option<T>) -> T {
-    wait_within(run_dir, what, WATCHDOG, cond)
-}
-
-/// [`wait_for`] with its own watchdog.
-fn wait_within<T>(run_dir: &Path, what: &str, watchdog: Duration, mut cond: impl FnMut() -> Option<T>) -> T {
+fn wait_for<T>(run_dir: &Path, what: &str, mut cond: impl FnMut() -> Option<T>) -> T {
     let start = Instant::now();
     loop {
         if let Some(v) = cond() {
             return v;
         }
-        if start.elapsed() > watchdog {
+        if start.elapsed() > WATCHDOG {
             let mut logs = String::new();
             for name in ["learner", "curriculum", "actor-0"] {
                 let text =
@@ -77,7 +67,7 @@ fn wait_within<T>(run_dir: &Path, what: &str, watchdog: Duration, mut cond: impl
                 let tail: Vec<&str> = text.lines().rev().take(15).collect();
                 logs += &format!("\n--- {name}.log (last lines, newest first)\n{}", tail.join("\n"));
             }
-            panic!("watchdog: {what} did not happen within {watchdog:?}{logs}");
+            panic!("watchdog: {what} did not happen within {WATCHDOG:?}{logs}");
         }
         std::thread::sleep(Duration::from_millis(200));
     }
@@ -260,46 +250,4 @@ fn two_runs_side_by_side_do_not_interfere_and_stop_at_their_budget() {
         assert_eq!(num(&streams[0], "records"), num(&actor, "steps_sent"));
         assert_eq!(num(&streams[0], "checksum"), num(&actor, "checksum"));
     }
-}
-
-/// Env steps (received by the learner) within which the state preset must pass the
-/// first task; measured in docs/results/cpu-state (see the README there for the
-/// per-seed figures this margin is taken over).
-const FIRST_TASK_STEP_BUDGET: u64 = 600_000;
-
-/// The loop learns, over the real processes: from the state observation
-/// (`deploy/configs/cpu_state.toml`, two actors) the curriculum's PassFirstTask gate
-/// opens within a fixed env-step budget. The assertion is on the curriculum's gate,
-/// not on time; the run stops as soon as the gate has opened, or at the budget.
-#[test]
-fn the_state_preset_passes_the_first_task_within_its_step_budget() {
-    let root = scratch_dir("runtime-learning");
-    let run_dir = root.join("run");
-    let config = workspace_root().join("deploy/configs/cpu_state.toml");
-    let budget = format!("runtime.max_env_steps={FIRST_TASK_STEP_BUDGET}");
-    let args = ["--actors", "2", "--config", config.to_str().unwrap(), "--seed", "3", "--set", &budget];
-    let mut run = run_local(&run_dir, &args);
-    let log = run_dir.join("logs/curriculum.log");
-    let passed =
-        wait_within(&run_dir, "the gate opening or the run reaching its budget", Duration::from_secs(3600), || {
-            let text = std::fs::read_to_string(&log).unwrap_or_default();
-            if text.contains("PassFirstTask passed") {
-                return Some(true);
-            }
-            run.try_wait().unwrap().map(|_| false)
-        });
-    if passed {
-        stop(&mut run, &run_dir);
-    }
-    let curriculum = stats(&run_dir, "curriculum").expect("curriculum stats");
-    let learner = stats(&run_dir, "learner").expect("learner stats");
-    assert_eq!(
-        curriculum["acl_phase"], true,
-        "PassFirstTask did not pass within {FIRST_TASK_STEP_BUDGET} env steps: curriculum {curriculum}, learner status {}",
-        learner["status"]
-    );
-    eprintln!(
-        "PassFirstTask passed after {} (budget {FIRST_TASK_STEP_BUDGET} env steps; {} updates)",
-        curriculum["first_task_passed"], learner["updates"]
-    );
 }
