@@ -6,8 +6,9 @@
 //! per actor incarnation, no sequence gaps); weights the learner published
 //! reached the actor and were used; tasks came from the curriculum service; an
 //! actor killed with SIGKILL is replaced and training continues; a stop writes a
-//! final checkpoint and a restart resumes from it. Only watchdogs — no timing
-//! assertions.
+//! final checkpoint and a restart resumes from it; and that the loop learns: the
+//! state preset (two actors) opens a strict first-task gate within a fixed env-step
+//! budget. Only watchdogs — no timing assertions.
 
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
@@ -29,8 +30,12 @@ fn bin_dir() -> PathBuf {
     paths[0].parent().unwrap().to_path_buf()
 }
 
+/// `deploy/run_local.sh` with one actor unless `extra` says `--actors`.
 fn run_local(run_dir: &Path, extra: &[&str]) -> Child {
-    let mut args = vec!["--actors", "1", "--run-dir", run_dir.to_str().unwrap()];
+    let mut args = vec!["--run-dir", run_dir.to_str().unwrap()];
+    if !extra.contains(&"--actors") {
+        args.extend(["--actors", "1"]);
+    }
     args.extend_from_slice(extra);
     Command::new(workspace_root().join("deploy/run_local.sh"))
         .args(&args)
@@ -53,13 +58,18 @@ fn num(v: &Value, key: &str) -> u64 {
 }
 
 /// Wait until `cond` holds, failing with `what` and the logs after the watchdog.
-fn wait_for<T>(run_dir: &Path, what: &str, mut cond: impl FnMut() -> Option<T>) -> T {
+fn wait_for<T>(run_dir: &Path, what: &str, cond: impl FnMut() -> Option<T>) -> T {
+    wait_within(run_dir, what, WATCHDOG, cond)
+}
+
+/// [`wait_for`] with its own watchdog.
+fn wait_within<T>(run_dir: &Path, what: &str, watchdog: Duration, mut cond: impl FnMut() -> Option<T>) -> T {
     let start = Instant::now();
     loop {
         if let Some(v) = cond() {
             return v;
         }
-        if start.elapsed() > WATCHDOG {
+        if start.elapsed() > watchdog {
             let mut logs = String::new();
             for name in ["learner", "curriculum", "actor-0"] {
                 let text =
@@ -67,7 +77,7 @@ fn wait_for<T>(run_dir: &Path, what: &str, mut cond: impl FnMut() -> Option<T>) 
                 let tail: Vec<&str> = text.lines().rev().take(15).collect();
                 logs += &format!("\n--- {name}.log (last lines, newest first)\n{}", tail.join("\n"));
             }
-            panic!("watchdog: {what} did not happen within {WATCHDOG:?}{logs}");
+            panic!("watchdog: {what} did not happen within {watchdog:?}{logs}");
         }
         std::thread::sleep(Duration::from_millis(200));
     }
@@ -250,4 +260,48 @@ fn two_runs_side_by_side_do_not_interfere_and_stop_at_their_budget() {
         assert_eq!(num(&streams[0], "records"), num(&actor, "steps_sent"));
         assert_eq!(num(&streams[0], "checksum"), num(&actor, "checksum"));
     }
+}
+
+/// Env steps (received by the learner) within which the state preset must open the
+/// strict gate below: with one critic the threshold-0 gate opened after 390,297, 112,174 and 110,437 decision steps for seeds 3, 4 and 5 (2 actors; 783, 139 and 111 s on a 2-core Xeon), so the budget is 2× the slowest; the test runs seed 4.
+const LEARNING_STEP_BUDGET: u64 = 800_000;
+
+/// The loop learns, over the real processes: from the state observation
+/// (`deploy/configs/cpu_state.toml`, two actors, one critic for speed) the
+/// curriculum's PassFirstTask gate opens within a fixed env-step budget, with its
+/// threshold raised from the paper's −25 to 0: from the first task's start (6 m in
+/// front of the goal, facing it) the untrained policy's walk averages −22 to −39 over
+/// 30 episodes (at −25 one seed opened the gate during the warm-up), while a mean of 0
+/// needs the direct, fast walk only training gives (+5 to +8). The assertion is on the
+/// gate, not on time; the run stops as soon as the gate opens, or at the budget.
+#[test]
+fn the_state_preset_learns_the_first_task_within_its_step_budget() {
+    let root = scratch_dir("runtime-learning");
+    let run_dir = root.join("run");
+    let config = workspace_root().join("deploy/configs/cpu_state.toml");
+    let budget = format!("runtime.max_env_steps={LEARNING_STEP_BUDGET}");
+    let sets = ["--set", &budget, "--set", "curriculum.pass_threshold=0", "--set", "dsac.twin_critics=false"];
+    let mut args = vec!["--actors", "2", "--config", config.to_str().unwrap(), "--seed", "4"];
+    args.extend(sets);
+    let mut run = run_local(&run_dir, &args);
+    let log = run_dir.join("logs/curriculum.log");
+    let opened = wait_within(&run_dir, "the gate opening or the budget", Duration::from_secs(3600), || {
+        if std::fs::read_to_string(&log).unwrap_or_default().contains("PassFirstTask passed") {
+            return Some(true);
+        }
+        run.try_wait().unwrap().map(|_| false)
+    });
+    if opened {
+        stop(&mut run, &run_dir);
+    }
+    let curriculum = stats(&run_dir, "curriculum").expect("curriculum stats");
+    let learner = stats(&run_dir, "learner").expect("learner stats");
+    assert_eq!(
+        curriculum["acl_phase"], true,
+        "the gate did not open within {LEARNING_STEP_BUDGET} env steps: {curriculum}, learner {}",
+        learner["status"]
+    );
+    // The preset's warm-up is 5e4 env steps: the gate must open on episodes after it.
+    let passed_at = &curriculum["first_task_passed"];
+    assert!(num(passed_at, "decision_steps") > 50_000, "the gate opened during the warm-up: {curriculum}");
 }
