@@ -227,12 +227,15 @@ pub fn load_checkpoint(dir: &Path, dsac: &mut Dsac) -> Result<CheckpointMeta> {
         weights.push(values);
     }
     let moments = read(OPTIM_FILE)?;
+    // The optimisers this learner has (the twin critic's only with twin critics).
+    let known: Vec<&'static str> = dsac.optimizers().iter().map(|(name, _)| *name).collect();
     let mut per_opt: BTreeMap<&str, HashMap<String, Tensor>> = BTreeMap::new();
     for (k, t) in moments {
         let (opt, key) =
             k.split_once('/').ok_or_else(|| ck_err(&dir.join(OPTIM_FILE), format!("bad moment name `{k}`")))?;
-        let opt = ["policy", "fraction", "quantile", "alpha", "quantile2"]
-            .into_iter()
+        let opt = known
+            .iter()
+            .copied()
             .find(|o| *o == opt)
             .ok_or_else(|| ck_err(&dir.join(OPTIM_FILE), format!("unknown optimiser `{opt}`")))?;
         per_opt.entry(opt).or_default().insert(key.to_string(), t);

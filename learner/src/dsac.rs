@@ -233,14 +233,17 @@ impl Dsac {
         let mut q_batch = (&z.detach() * fr.widths.detach())?.sum(D::Minus1)?;
         // The twin's features: its own encoder's, or the shared encoder's *with* their
         // graph, so that both critic losses train a shared encoder.
-        let twin_features = match &nets.twin {
-            Some(twin) => Some(match &twin.quantile.encoder {
-                Some(e) => e.encode(&obs)?,
-                None => feats.quantile.clone(),
-            }),
+        let twin = match &nets.twin {
+            Some(t) => Some((
+                t,
+                match &t.quantile.encoder {
+                    Some(e) => e.encode(&obs)?,
+                    None => feats.quantile.clone(),
+                },
+            )),
             None => None,
         };
-        if let (Some(twin), Some(f2)) = (&nets.twin, &twin_features) {
+        if let Some((twin, f2)) = &twin {
             let z2 = twin.quantile.grid(f2, &batch.action)?.at(&hats)?;
             let loss2 = weighted_mean(&quantile_huber_loss(&z2, &target, &hats, &next_widths, c.huber_kappa)?, eta)?;
             critic_loss = (critic_loss + loss2)?;
@@ -264,7 +267,7 @@ impl Dsac {
         let new_fr = nets.fraction.fractions(&feats.fraction.detach(), &pi.action.detach())?;
         let z_new = nets.quantile.grid(&feats.quantile.detach(), &pi.action)?.at(&new_fr.hats.detach())?;
         let mut q_new = (z_new * new_fr.widths.detach())?.sum(D::Minus1)?;
-        if let (Some(twin), Some(f2)) = (&nets.twin, &twin_features) {
+        if let Some((twin, f2)) = &twin {
             let z2_new = twin.quantile.grid(&f2.detach(), &pi.action)?.at(&new_fr.hats.detach())?;
             q_new = q_new.minimum(&(z2_new * new_fr.widths.detach())?.sum(D::Minus1)?)?;
         }
