@@ -177,18 +177,60 @@ pub fn load_acting(dir: &Path, nets: &DsacNets) -> Result<CheckpointMeta> {
             format!("it was written for networks {:?}, these networks are {:?}", meta.nets, nets.cfg),
         ));
     }
-    let dev = nets.policy.store.device().clone();
-    let stores = nets.acting_stores();
+    load_stores(dir, &meta, &nets.acting_stores())?;
+    Ok(meta)
+}
+
+/// Load `stores` from the checkpoint `dir` described by `meta`: every file is read
+/// and checked (checksum, tensor names and shapes) before any store changes.
+fn load_stores(dir: &Path, meta: &CheckpointMeta, stores: &[&ParamStore]) -> Result<()> {
+    let Some(first) = stores.first() else { return Ok(()) };
+    let dev = first.device().clone();
     let mut weights = Vec::new();
-    for store in &stores {
-        let values = read_verified(dir, &meta, &format!("{}.safetensors", store.name()), &dev)?;
+    for store in stores {
+        let values = read_verified(dir, meta, &format!("{}.safetensors", store.name()), &dev)?;
         store.check(&values)?;
         weights.push(values);
     }
     for (store, values) in stores.iter().zip(&weights) {
         store.load(values)?;
     }
-    Ok(meta)
+    Ok(())
+}
+
+/// A trained agent for analysis: the online networks of a checkpoint and its temperature.
+pub struct TrainedAgent {
+    /// Policy, fraction and quantile nets (and the twin critic's when the checkpoint
+    /// has one), loaded; the target nets keep their initial weights.
+    pub nets: DsacNets,
+    /// The entropy temperature α = exp(log α) at the checkpoint.
+    pub alpha: f64,
+    /// The checkpoint's state file.
+    pub meta: CheckpointMeta,
+}
+
+/// The online networks of the checkpoint in `dir` and its temperature, on `device`,
+/// for analysis of what the critic and the encoders learned (e.g. `pednav-diagnose`):
+/// the files [`agent_files`] names, checksums verified. The architecture comes from
+/// the checkpoint's state file; a folder without those files (e.g. one that keeps
+/// only [`acting_files`]) is refused naming the missing file.
+pub fn load_agent(dir: &Path, device: &Device) -> Result<TrainedAgent> {
+    let meta = read_meta(dir)?;
+    let mut nets = DsacNets::new(&meta.nets, device, 0)?;
+    if meta.twin_critics {
+        nets = nets.with_twin_critic(0)?;
+    }
+    let mut log_alpha = ParamStore::new("log_alpha", device);
+    log_alpha.insert("log_alpha", Tensor::zeros(1, candle_core::DType::F32, device)?)?;
+    // The online networks only: the Polyak targets play no part in acting or in Q(s, a).
+    let mut stores = vec![&nets.policy.store, &nets.fraction.store, &nets.quantile.store];
+    if let Some(twin) = &nets.twin {
+        stores.push(&twin.quantile.store);
+    }
+    stores.push(&log_alpha);
+    load_stores(dir, &meta, &stores)?;
+    let alpha = f64::from(log_alpha.tensors()["log_alpha"].to_vec1::<f32>()?[0]).exp();
+    Ok(TrainedAgent { nets, alpha, meta })
 }
 
 /// The files of a checkpoint that [`load_acting`] reads for `nets`: the state file
@@ -197,6 +239,17 @@ pub fn acting_files(nets: &DsacNets) -> Vec<String> {
     std::iter::once(STATE_FILE.to_string())
         .chain(nets.acting_stores().iter().map(|s| format!("{}.safetensors", s.name())))
         .collect()
+}
+
+/// The files of a checkpoint that [`load_agent`] reads: the state file, the online
+/// networks' weights and the temperature — what a results folder keeps to be diagnosed.
+pub fn agent_files(twin_critics: bool) -> Vec<String> {
+    let mut files = vec![STATE_FILE, "policy.safetensors", "fraction.safetensors", "quantile.safetensors"];
+    if twin_critics {
+        files.push("quantile2.safetensors");
+    }
+    files.push("log_alpha.safetensors");
+    files.into_iter().map(str::to_string).collect()
 }
 
 /// Restore `dsac` from the checkpoint in `dir`. Everything is verified first; on

@@ -10,7 +10,10 @@ pub mod error;
 pub mod rate;
 pub mod replay;
 
-pub use checkpoint::{CheckpointMeta, acting_files, load_acting, load_checkpoint, read_meta, save_checkpoint};
+pub use checkpoint::{
+    CheckpointMeta, TrainedAgent, acting_files, agent_files, load_acting, load_agent, load_checkpoint, read_meta,
+    save_checkpoint,
+};
 pub use config::DsacConfig;
 pub use device_check::{DeviceComparison, compare_update, fill_replay};
 pub use dsac::{Dsac, UpdateStats, fraction_gradient, quantile_huber_loss, smaller_mean};

@@ -2,8 +2,8 @@
 
 use candle_core::{Device, Tensor};
 use pednav_learner::{
-    Batch, Dsac, DsacConfig, DualReplay, Frame, FrameKind, ReplayConfig, Step, acting_files, fraction_gradient,
-    load_acting, load_checkpoint, quantile_huber_loss, save_checkpoint, smaller_mean,
+    Batch, Dsac, DsacConfig, DualReplay, Frame, FrameKind, ReplayConfig, Step, acting_files, agent_files,
+    fraction_gradient, load_acting, load_agent, load_checkpoint, quantile_huber_loss, save_checkpoint, smaller_mean,
 };
 use pednav_nets::{DsacNets, EncoderKind, NetsConfig, Obs};
 use rand::{Rng, SeedableRng};
@@ -330,6 +330,30 @@ fn checkpoints_round_trip_bit_exactly_and_bad_ones_change_nothing() {
     std::fs::write(kept.join("policy.safetensors"), &bytes).unwrap();
     load_acting(&kept, &fresh).unwrap();
     assert_eq!(policy(&fresh), policy(&a.nets));
+
+    // What a diagnosed results folder keeps: the online networks and α of the twin
+    // checkpoint load them all (Q needs the fraction net and both critics); without
+    // one of the files the load names it.
+    let diag = dir.join("diagnosed");
+    std::fs::create_dir_all(&diag).unwrap();
+    let files = agent_files(true);
+    for file in &files {
+        std::fs::copy(twin_ck.join(file), diag.join(file)).unwrap();
+    }
+    let agent = load_agent(&diag, &Device::Cpu).unwrap();
+    let mut e = Dsac::new(&twin_cfg, &nets, &Device::Cpu, 7).unwrap();
+    load_checkpoint(&twin_ck, &mut e).unwrap();
+    let values = |s: &pednav_nets::ParamStore| -> Vec<Vec<f32>> {
+        s.vars().iter().map(|(_, v)| v.flatten_all().unwrap().to_vec1().unwrap()).collect()
+    };
+    assert_eq!(values(&agent.nets.fraction.store), values(&e.nets.fraction.store));
+    assert_eq!(values(&agent.nets.quantile.store), values(&e.nets.quantile.store));
+    let (twin_a, twin_e) = (agent.nets.twin.as_ref().unwrap(), e.nets.twin.as_ref().unwrap());
+    assert_eq!(values(&twin_a.quantile.store), values(&twin_e.quantile.store));
+    assert!((agent.alpha - e.alpha().unwrap()).abs() < 1e-6, "α {} vs {}", agent.alpha, e.alpha().unwrap());
+    std::fs::remove_file(diag.join("fraction.safetensors")).unwrap();
+    let err = load_agent(&diag, &Device::Cpu).err().expect("a missing file is refused").to_string();
+    assert!(err.contains("fraction.safetensors"), "{err}");
     let _ = std::fs::remove_dir_all(&dir);
 }
 

@@ -96,6 +96,7 @@ fn a_tiny_run_can_be_evaluated_and_plotted() {
     assert_picture(&run.join("plots/training_return.png"), 800);
     assert_picture(&run.join("plots/episodes.png"), 800);
     assert_picture(&run.join("plots/curriculum_snapshots.png"), 300);
+    assert_picture(&run.join("plots/learner.png"), 1200);
     let cmp = root.join("compare.png");
     let group = format!("smoke={},{}", run.display(), run.display());
     ok(Command::new(&paths[4]).args(["compare", "--group", &group, "--out", cmp.to_str().unwrap()]));
@@ -138,6 +139,33 @@ fn a_tiny_run_can_be_evaluated_and_plotted() {
         })
         .count();
     assert!(same * 10 >= a.len() * 9, "{same} of {} episodes agree across workers and batch sizes", a.len());
+
+    // The diagnosis watches the same episodes (same tasks and seed, 8 envs): it saw
+    // every decision of them, and probes the pose from both encoders.
+    let diag = root.join("diagnosis");
+    let stdout = ok(Command::new(binary("pednav-experiments", "shared/experiments", "pednav-diagnose")).args([
+        "--run-dir",
+        run.to_str().unwrap(),
+        "--t-max",
+        "40",
+        "--stride",
+        "2",
+        "--out",
+        diag.to_str().unwrap(),
+    ]));
+    assert!(stdout.contains("Linear probe") && stdout.contains("Critic Q(s,a)"), "{stdout}");
+    let json: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(diag.join("diagnosis.json")).unwrap()).unwrap();
+    assert_eq!(json["episodes"], 112, "{json}");
+    let steps: u64 = b.iter().map(|r| r[5].parse::<u64>().unwrap()).sum();
+    let decisions = json["decisions"].as_u64().unwrap();
+    assert!(decisions.abs_diff(steps) * 20 <= steps, "the diagnosis saw {decisions} decisions, the evaluation {steps}");
+    for row in json["probe"].as_array().unwrap().iter().take(4) {
+        for which in ["trained", "untrained"] {
+            let r2 = row[which].as_f64().unwrap_or_else(|| panic!("no {which} R² for {row}"));
+            assert!(r2.is_finite() && r2 <= 1.0, "{row}");
+        }
+    }
 }
 
 /// A committed result is re-evaluated from the policy its folder keeps (no training):

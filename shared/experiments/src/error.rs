@@ -16,6 +16,9 @@ pub enum ExperimentError {
     /// Drawing failed.
     #[error("plot: {0}")]
     Plot(String),
+    /// A diagnosis could not be computed.
+    #[error("diagnosis: {0}")]
+    Diagnosis(String),
     /// The simulator refused something.
     #[error(transparent)]
     Sim(#[from] pednav_sim::SimError),

@@ -59,6 +59,32 @@ enum Policy {
 /// Stream of a task's seed that a sampling policy's noise comes from.
 const POLICY_NOISE_STREAM: u64 = 11;
 
+/// What an [`EpisodeObserver`] sees when a learned policy acts on every environment.
+pub struct Decision<'a> {
+    /// The observations of all M environments (the full N_h windows for pixels).
+    pub obs: &'a Obs,
+    /// The actions taken, (M, 3).
+    pub actions: &'a Tensor,
+    /// log π(a|s) of the sampled actions, (M); `None` when acting with the mode.
+    pub log_probs: Option<&'a Tensor>,
+    /// Each environment's pose when it decided.
+    pub poses: &'a [Pose],
+    /// Each environment's task, `None` for an environment only filling the batch
+    /// after the task list ran out (its episode is not part of the results).
+    pub tasks: &'a [Option<EvalTask>],
+}
+
+/// Watches the episodes of [`Evaluator::run_observed`] (e.g. to record features,
+/// critic values and returns for diagnosis). The evaluator's results do not depend
+/// on whether it is watched.
+pub trait EpisodeObserver {
+    /// Every environment decided (called once per step, before the step).
+    fn decision(&mut self, decision: &Decision<'_>) -> Result<()>;
+    /// Environment `env` received `reward`; `ended` is `Some(terminated)` when its
+    /// episode ended with this step (`false`: truncated at T_max).
+    fn transition(&mut self, env: usize, reward: f32, ended: Option<bool>) -> Result<()>;
+}
+
 /// Evaluates tasks with one policy on a batch of environments.
 pub struct Evaluator {
     world: Arc<SimWorld>,
@@ -164,8 +190,10 @@ impl Evaluator {
         Ok(())
     }
 
-    fn actions(&mut self) -> Result<Vec<Action>> {
+    fn actions(&mut self, watch: Option<(&mut dyn EpisodeObserver, &[Option<EvalTask>])>) -> Result<Vec<Action>> {
         let m = self.envs.num_envs();
+        let poses: Vec<Pose> =
+            if watch.is_some() { (0..m).map(|e| self.envs.pedestrian(e).pose).collect() } else { Vec::new() };
         Ok(match &mut self.policy {
             Policy::Random(rng) => (0..m)
                 .map(|_| [rng.random_range(-1.0..1.0), rng.random_range(-1.0..1.0), rng.random_range(-1.0..1.0)])
@@ -173,29 +201,55 @@ impl Evaluator {
             Policy::Oracle(o) => (0..m).map(|e| o.best_action(&self.world, self.envs.pedestrian(e))).collect(),
             Policy::Learned { nets, cfg, stream, deterministic, noise } => {
                 let all: Vec<usize> = (0..m).collect();
-                let f = if self.world.config.obs_mode == ObsMode::Pixels {
-                    stream.features(nets.acting_encoder(), &all)?
+                let pixels = self.world.config.obs_mode == ObsMode::Pixels;
+                // The observation itself is only built when someone watches (pixels
+                // act from the streaming cache).
+                let (f, obs) = if pixels {
+                    let obs = if watch.is_some() { Some(stream.observation(&all)?) } else { None };
+                    (stream.features(nets.acting_encoder(), &all)?, obs)
                 } else {
                     let s: Vec<f32> = (0..m).flat_map(|e| self.envs.state_obs(e)).collect();
-                    nets.acting_encoder().encode(&Obs::State(Tensor::from_vec(s, (m, cfg.state_dim), &self.device)?))?
+                    let obs = Obs::State(Tensor::from_vec(s, (m, cfg.state_dim), &self.device)?);
+                    (nets.acting_encoder().encode(&obs)?, Some(obs))
                 };
                 let dist = nets.policy.head(&f)?;
-                let a = if *deterministic {
-                    dist.mode()?
+                let (a, log_probs) = if *deterministic {
+                    (dist.mode()?, None)
                 } else {
                     let per_env = noise
                         .iter_mut()
                         .map(|rng| pednav_nets::heads::standard_normal(rng, 1, &self.device))
                         .collect::<std::result::Result<Vec<_>, _>>()?;
-                    dist.sample(&Tensor::cat(&per_env, 0)?)?.action
+                    let sample = dist.sample(&Tensor::cat(&per_env, 0)?)?;
+                    (sample.action, Some(sample.log_prob))
                 };
+                if let (Some((observer, tasks)), Some(obs)) = (watch, &obs) {
+                    observer.decision(&Decision {
+                        obs,
+                        actions: &a,
+                        log_probs: log_probs.as_ref(),
+                        poses: &poses,
+                        tasks,
+                    })?;
+                }
                 a.to_vec2::<f32>()?.into_iter().map(|v| [v[0], v[1], v[2]]).collect()
             }
         })
     }
 
     /// Run every task; `progress` is called with the number of finished episodes.
-    pub fn run(&mut self, tasks: &[EvalTask], mut progress: impl FnMut(usize)) -> Result<Vec<EpisodeResult>> {
+    pub fn run(&mut self, tasks: &[EvalTask], progress: impl FnMut(usize)) -> Result<Vec<EpisodeResult>> {
+        self.run_observed(tasks, progress, None)
+    }
+
+    /// [`Evaluator::run`], with `observer` (if any) shown every decision and
+    /// transition of a learned policy.
+    pub fn run_observed(
+        &mut self,
+        tasks: &[EvalTask],
+        mut progress: impl FnMut(usize),
+        mut observer: Option<&mut dyn EpisodeObserver>,
+    ) -> Result<Vec<EpisodeResult>> {
         let m = self.envs.num_envs();
         let mut running: Vec<Option<Running>> = (0..m).map(|_| None).collect();
         let mut results = Vec::with_capacity(tasks.len());
@@ -209,7 +263,14 @@ impl Evaluator {
         }
         self.first_frames(&started)?;
         while running.iter().any(|r| r.as_ref().is_some_and(|r| !r.filler)) {
-            let actions = self.actions()?;
+            let actions = match observer.as_deref_mut() {
+                Some(o) => {
+                    let counted: Vec<Option<EvalTask>> =
+                        running.iter().map(|r| r.as_ref().filter(|r| !r.filler).map(|r| r.task)).collect();
+                    self.actions(Some((o, &counted)))?
+                }
+                None => self.actions(None)?,
+            };
             let transitions = self.envs.step(&actions)?.to_vec();
             let pixels = self.pixels();
             let frames: Vec<Vec<u8>> = if pixels {
@@ -225,6 +286,9 @@ impl Evaluator {
                 r.discount *= self.gamma;
                 r.steps += 1;
                 r.trajectory.push([t.pose.x, t.pose.y]);
+                if let Some(o) = observer.as_deref_mut() {
+                    o.transition(e, t.reward, (t.terminated || t.truncated).then_some(t.terminated))?;
+                }
                 if t.terminated || t.truncated {
                     let done = running[e].take().expect("present");
                     if !done.filler {
@@ -276,7 +340,7 @@ impl Evaluator {
             let p = self.envs.pedestrian(0);
             canvas.pose_arrow(Pose { yaw: p.camera_yaw(), ..p.pose }, 2.0, [250, 140, 0]);
             gif.push(side_by_side(&enlarge_gray(&frame, size, 4), &canvas.image));
-            let a = self.actions()?;
+            let a = self.actions(None)?;
             let t = self.envs.step(&a)?[0];
             let r = running[0].as_mut().expect("running");
             r.ret += r.discount * t.reward;

@@ -4,6 +4,9 @@
 //!   T_max 2000) and custom start lists;
 //! - [`evaluate`]: running the episodes with a checkpoint's policy (or random,
 //!   or the oracle), batched, deterministic per task;
+//! - [`diagnose`]: what a trained agent learned along its evaluation episodes
+//!   (a linear probe of the encoder for pose and return, the critic against
+//!   Monte-Carlo returns);
 //! - [`table`]: Table III's aggregation (mean ± std per point, Avg.Int, Avg.Ext,
 //!   success rate, oracle);
 //! - [`plots`]: Fig. 3 (return and episodes vs decision steps), Fig. 4 snapshots,
@@ -11,6 +14,7 @@
 
 #![warn(missing_docs)]
 
+pub mod diagnose;
 pub mod error;
 pub mod evaluate;
 pub mod plots;

@@ -12,6 +12,7 @@ use image::RgbImage;
 use pednav_curriculum::{CurriculumConfig, ServiceState, classify_region};
 use pednav_sim::Scene;
 use pednav_sim::draw::draw_map;
+use plotters::coord::Shift;
 use plotters::prelude::*;
 
 use crate::error::{ExperimentError, Result};
@@ -89,85 +90,140 @@ pub fn line_chart(
     {
         let root = BitMapBackend::with_buffer(&mut buf, (w, h)).into_drawing_area();
         root.fill(&WHITE).map_err(plot_err)?;
-        let all = series.iter().flat_map(|s| {
-            s.points.iter().enumerate().flat_map(move |(i, p)| {
-                let b = s.band.as_ref().map_or(0.0, |b| b[i]);
-                [(p.0, p.1 - b), (p.0, p.1 + b)]
-            })
-        });
-        let (mut x0, mut x1, mut y0, mut y1) = (f64::MAX, f64::MIN, f64::MAX, f64::MIN);
-        for (x, y) in all.chain(hlines.iter().map(|l| (f64::NAN, l.1))) {
-            if x.is_finite() {
-                x0 = x0.min(x);
-                x1 = x1.max(x);
-            }
-            if y.is_finite() {
-                y0 = y0.min(y);
-                y1 = y1.max(y);
-            }
-        }
-        if x0 > x1 {
-            (x0, x1) = (0.0, 1.0);
-        }
-        if y0 > y1 {
-            (y0, y1) = (0.0, 1.0);
-        }
-        let pad = ((y1 - y0) * 0.05).max(1e-3);
-        let x1 = if x1 > x0 { x1 } else { x0 + 1.0 };
-        let mut chart = ChartBuilder::on(&root)
-            .caption(title, ("sans-serif", 24))
-            .margin(12)
-            .x_label_area_size(45)
-            .y_label_area_size(65)
-            .build_cartesian_2d(x0..x1, (y0 - pad)..(y1 + pad))
-            .map_err(plot_err)?;
-        chart
-            .configure_mesh()
-            .x_desc(x_label)
-            .y_desc(y_label)
-            .label_style(("sans-serif", 15))
-            .draw()
-            .map_err(plot_err)?;
-        for s in series {
-            if let Some(band) = &s.band {
-                let upper = s.points.iter().zip(band).map(|(p, b)| (p.0, p.1 + b));
-                let lower: Vec<_> = s.points.iter().zip(band).map(|(p, b)| (p.0, p.1 - b)).collect();
-                let poly: Vec<(f64, f64)> = upper.chain(lower.into_iter().rev()).collect();
-                chart.draw_series(std::iter::once(Polygon::new(poly, s.colour.mix(0.2).filled()))).map_err(plot_err)?;
-            }
-            if s.dots {
-                chart
-                    .draw_series(s.points.iter().map(|&p| Circle::new(p, 2, s.colour.mix(0.25).filled())))
-                    .map_err(plot_err)?;
-            } else {
-                let c = s.colour;
-                chart
-                    .draw_series(LineSeries::new(s.points.iter().copied(), c.stroke_width(2)))
-                    .map_err(plot_err)?
-                    .label(s.label.clone())
-                    .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], c.stroke_width(2)));
-            }
-        }
-        for (i, (label, y)) in hlines.iter().enumerate() {
-            let c = PALETTE[(3 + i) % PALETTE.len()];
-            let style = ShapeStyle { color: c.mix(0.9), filled: false, stroke_width: 2 };
-            chart
-                .draw_series(DashedLineSeries::new([(x0, *y), (x1, *y)], 6 + i as u32 * 2, 4, style))
-                .map_err(plot_err)?
-                .label(label.clone())
-                .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], style));
-        }
-        chart
-            .configure_series_labels()
-            .background_style(WHITE.mix(0.85))
-            .border_style(BLACK)
-            .label_font(("sans-serif", 15))
-            .position(SeriesLabelPosition::LowerRight)
-            .draw()
-            .map_err(plot_err)?;
+        draw_chart(
+            &root,
+            &Panel { title: title.into(), x_label: x_label.into(), y_label: y_label.into(), series: series.to_vec() },
+            hlines,
+        )?;
         root.present().map_err(plot_err)?;
     }
     save(buf, w, h, path)
+}
+
+/// One chart of a multi-panel figure.
+#[derive(Debug, Clone)]
+pub struct Panel {
+    /// The panel's caption.
+    pub title: String,
+    /// Horizontal axis label.
+    pub x_label: String,
+    /// Vertical axis label.
+    pub y_label: String,
+    /// Its curves.
+    pub series: Vec<Series>,
+}
+
+/// Several charts in a grid of `columns` columns under one title, as a PNG.
+pub fn panel_chart(path: &Path, title: &str, panels: &[Panel], columns: usize) -> Result<()> {
+    init_font()?;
+    let columns = columns.clamp(1, panels.len().max(1));
+    let rows = panels.len().div_ceil(columns).max(1);
+    let (w, h) = (620 * columns as u32, 420 * rows as u32 + 50);
+    let mut buf = vec![255u8; (w * h * 3) as usize];
+    {
+        let root = BitMapBackend::with_buffer(&mut buf, (w, h)).into_drawing_area();
+        root.fill(&WHITE).map_err(plot_err)?;
+        let body = root.titled(title, ("sans-serif", 26)).map_err(plot_err)?;
+        for (area, panel) in body.split_evenly((rows, columns)).iter().zip(panels) {
+            draw_chart(area, panel, &[])?;
+        }
+        root.present().map_err(plot_err)?;
+    }
+    save(buf, w, h, path)
+}
+
+/// Draw `panel` (and labelled horizontal lines) into `area`.
+fn draw_chart(area: &DrawingArea<BitMapBackend<'_>, Shift>, panel: &Panel, hlines: &[(String, f64)]) -> Result<()> {
+    let (title, x_label, y_label, series) = (&panel.title, &panel.x_label, &panel.y_label, &panel.series);
+    let all = series.iter().flat_map(|s| {
+        s.points.iter().enumerate().flat_map(move |(i, p)| {
+            let b = s.band.as_ref().map_or(0.0, |b| b[i]);
+            [(p.0, p.1 - b), (p.0, p.1 + b)]
+        })
+    });
+    let (mut x0, mut x1, mut y0, mut y1) = (f64::MAX, f64::MIN, f64::MAX, f64::MIN);
+    for (x, y) in all.chain(hlines.iter().map(|l| (f64::NAN, l.1))) {
+        if x.is_finite() {
+            x0 = x0.min(x);
+            x1 = x1.max(x);
+        }
+        if y.is_finite() {
+            y0 = y0.min(y);
+            y1 = y1.max(y);
+        }
+    }
+    if x0 > x1 {
+        (x0, x1) = (0.0, 1.0);
+    }
+    if y0 > y1 {
+        (y0, y1) = (0.0, 1.0);
+    }
+    let pad = ((y1 - y0) * 0.05).max(1e-3);
+    let x1 = if x1 > x0 { x1 } else { x0 + 1.0 };
+    let mut chart = ChartBuilder::on(area)
+        .caption(title, ("sans-serif", 24))
+        .margin(12)
+        .x_label_area_size(45)
+        .y_label_area_size(65)
+        .build_cartesian_2d(x0..x1, (y0 - pad)..(y1 + pad))
+        .map_err(plot_err)?;
+    chart
+        .configure_mesh()
+        .x_desc(x_label)
+        .y_desc(y_label)
+        .x_labels(7)
+        .x_label_formatter(&|v| short_number(*v))
+        .label_style(("sans-serif", 15))
+        .draw()
+        .map_err(plot_err)?;
+    for s in series {
+        if let Some(band) = &s.band {
+            let upper = s.points.iter().zip(band).map(|(p, b)| (p.0, p.1 + b));
+            let lower: Vec<_> = s.points.iter().zip(band).map(|(p, b)| (p.0, p.1 - b)).collect();
+            let poly: Vec<(f64, f64)> = upper.chain(lower.into_iter().rev()).collect();
+            chart.draw_series(std::iter::once(Polygon::new(poly, s.colour.mix(0.2).filled()))).map_err(plot_err)?;
+        }
+        if s.dots {
+            chart
+                .draw_series(s.points.iter().map(|&p| Circle::new(p, 2, s.colour.mix(0.25).filled())))
+                .map_err(plot_err)?;
+        } else {
+            let c = s.colour;
+            chart
+                .draw_series(LineSeries::new(s.points.iter().copied(), c.stroke_width(2)))
+                .map_err(plot_err)?
+                .label(s.label.clone())
+                .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], c.stroke_width(2)));
+        }
+    }
+    for (i, (label, y)) in hlines.iter().enumerate() {
+        let c = PALETTE[(3 + i) % PALETTE.len()];
+        let style = ShapeStyle { color: c.mix(0.9), filled: false, stroke_width: 2 };
+        chart
+            .draw_series(DashedLineSeries::new([(x0, *y), (x1, *y)], 6 + i as u32 * 2, 4, style))
+            .map_err(plot_err)?
+            .label(label.clone())
+            .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], style));
+    }
+    chart
+        .configure_series_labels()
+        .background_style(WHITE.mix(0.85))
+        .border_style(BLACK)
+        .label_font(("sans-serif", 15))
+        .position(SeriesLabelPosition::LowerRight)
+        .draw()
+        .map_err(plot_err)?;
+    Ok(())
+}
+
+/// An axis label: 1,500 → "1.5k", 200,000 → "200k", 3,000,000 → "3M", 0.25 → "0.25".
+pub fn short_number(v: f64) -> String {
+    let trim = |s: String| if s.contains('.') { s.trim_end_matches('0').trim_end_matches('.').to_string() } else { s };
+    match v.abs() {
+        a if a >= 1e6 => format!("{}M", trim(format!("{:.2}", v / 1e6))),
+        a if a >= 1e3 => format!("{}k", trim(format!("{:.1}", v / 1e3))),
+        _ => trim(format!("{v:.2}")),
+    }
 }
 
 /// Centred moving average over `window` points (shorter at the ends).
@@ -284,6 +340,12 @@ pub fn curriculum_snapshots(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn axis_numbers_are_short() {
+        let got: Vec<String> = [0.0, 0.25, 1500.0, 200_000.0, 3_000_000.0, -20_000.0].map(short_number).to_vec();
+        assert_eq!(got, ["0", "0.25", "1.5k", "200k", "3M", "-20k"]);
+    }
 
     #[test]
     fn moving_average_by_hand() {

@@ -4,7 +4,9 @@
 //! pednav-plot curves --run-dir runs/X          # Fig. 3: return and episodes vs decision steps, with oracle lines
 //! pednav-plot curriculum --run-dir runs/X      # Fig. 4 over time, from the curriculum snapshots
 //! pednav-plot compare --group "TCN=runs/a,runs/b" --group "FR=runs/c,runs/d" --out cmp.png
-//! pednav-plot all --run-dir runs/X             # curves + curriculum
+//! pednav-plot learner --run-dir runs/a --run-dir runs/b --out learner.png
+//!                                              # α, entropy, Q, losses, replay terminal share vs env steps
+//! pednav-plot all --run-dir runs/X             # curves + curriculum + learner
 //! pednav-plot table --group "TCN=runs/a,runs/b" --random eval/random --out table.md
 //!                                              # Table III layout from the runs' evaluations
 //! ```
@@ -83,7 +85,18 @@ enum Cmd {
         #[arg(long)]
         out: Option<PathBuf>,
     },
-    /// `curves` and (when snapshots exist) `curriculum`.
+    /// The learner's state over training, from `metrics/learner.csv`: temperature α,
+    /// policy entropy, the batch's mean Q, critic and policy losses, and the replay's
+    /// terminal share, against env steps, one curve per run.
+    Learner {
+        /// Run directories (repeatable; one curve each, labelled by folder name).
+        #[arg(long, required = true)]
+        run_dir: Vec<PathBuf>,
+        /// Output PNG (default <first run>/plots/learner.png).
+        #[arg(long)]
+        out: Option<PathBuf>,
+    },
+    /// `curves`, `learner` and (when snapshots exist) `curriculum`.
     All {
         /// The run directory.
         #[arg(long)]
@@ -187,6 +200,79 @@ fn curves(run: &Path, out: &Path, window: usize) -> Result<()> {
         eps.len(),
         steps.last().unwrap()
     );
+    Ok(())
+}
+
+/// The learner metrics panels: (column, panel title, axis label).
+const LEARNER_PANELS: [(&str, &str, &str); 6] = [
+    ("alpha", "temperature α", "α"),
+    ("entropy", "policy entropy −log π (batch mean)", "nats"),
+    ("q_mean", "mean Q(s, a) of the batch", "Q"),
+    ("critic_loss", "critic loss (quantile Huber)", "loss"),
+    ("policy_loss", "policy loss", "loss"),
+    ("terminal_share", "replay: terminal share of stored transitions", "share"),
+];
+
+/// Columns of a run's `metrics/learner.csv` by name (a value that is absent or not a
+/// number reads as NaN and is left out of the curves).
+fn learner_metrics(run: &Path) -> Result<(Vec<String>, Vec<Vec<f64>>)> {
+    let path = run.join("metrics").join("learner.csv");
+    let text = std::fs::read_to_string(&path)
+        .with_context(|| format!("{}: no learner log (the learner writes it during a run)", path.display()))?;
+    let mut lines = text.lines();
+    let header: Vec<String> =
+        lines.next().with_context(|| format!("{}: empty", path.display()))?.split(',').map(str::to_string).collect();
+    let rows: Vec<Vec<f64>> = lines
+        .map(|l| l.split(',').map(|v| v.parse::<f64>().unwrap_or(f64::NAN)).collect::<Vec<f64>>())
+        .filter(|r| r.len() == header.len())
+        .collect();
+    if rows.is_empty() {
+        bail!("{}: no rows yet", path.display());
+    }
+    Ok((header, rows))
+}
+
+fn learner(runs: &[PathBuf], out: &Path) -> Result<()> {
+    let mut panels: Vec<plots::Panel> = LEARNER_PANELS
+        .iter()
+        .map(|(_, title, y)| plots::Panel {
+            title: title.to_string(),
+            x_label: "env steps".into(),
+            y_label: y.to_string(),
+            series: Vec::new(),
+        })
+        .collect();
+    for (i, run) in runs.iter().enumerate() {
+        let (header, rows) = learner_metrics(run)?;
+        let col = |n: &str| header.iter().position(|h| h == n);
+        let step = col("step").with_context(|| format!("{}: learner log without `step`", run.display()))?;
+        let name = run.file_name().map_or("run".into(), |n| n.to_string_lossy().to_string());
+        for (panel, (column, _, _)) in panels.iter_mut().zip(LEARNER_PANELS) {
+            let value = |r: &Vec<f64>| -> Option<f64> {
+                if column == "terminal_share" {
+                    let (t, n) = (r[col("replay_terminal")?], r[col("replay_nonterminal")?]);
+                    (t + n > 0.0).then(|| t / (t + n))
+                } else {
+                    // Update statistics exist only for intervals with updates.
+                    let v = r[col(column)?];
+                    (r[col("updates_per_s")?] > 0.0).then_some(v)
+                }
+            };
+            let points: Vec<(f64, f64)> =
+                rows.iter().filter_map(|r| Some((r[step], value(r)?))).filter(|p| p.1.is_finite()).collect();
+            panel.series.push(Series {
+                label: name.clone(),
+                points,
+                band: None,
+                colour: PALETTE[i % PALETTE.len()],
+                dots: false,
+            });
+        }
+    }
+    let names: Vec<String> =
+        runs.iter().map(|r| r.file_name().map_or("run".into(), |n| n.to_string_lossy().to_string())).collect();
+    plots::panel_chart(out, &format!("learner state over training: {}", names.join(" vs ")), &panels, 3)?;
+    println!("wrote {}", out.display());
     Ok(())
 }
 
@@ -362,8 +448,15 @@ fn main() -> Result<()> {
             }
             Ok(())
         }
+        Cmd::Learner { run_dir, out } => {
+            let out = out.unwrap_or_else(|| run_dir[0].join("plots").join("learner.png"));
+            learner(&run_dir, &out)
+        }
         Cmd::All { run_dir } => {
             curves(&run_dir, &run_dir.join("plots"), 50)?;
+            if run_dir.join("metrics").join("learner.csv").is_file() {
+                learner(std::slice::from_ref(&run_dir), &run_dir.join("plots").join("learner.png"))?;
+            }
             let cfg = RunConfig::load(&run_dir.join("config.toml"))?;
             if cfg.curriculum.variant != pednav_curriculum::Variant::FixedStart {
                 curriculum(&run_dir, &run_dir.join("plots").join("curriculum_snapshots.png"), 6)?;
