@@ -468,7 +468,7 @@ pub struct ProbeRow {
     pub trained: Option<f64>,
     /// R² of the untrained encoder's features (same architecture and windows).
     pub untrained: Option<f64>,
-    /// Samples fitted (even yaws) and tested (odd yaws).
+    /// Samples fitted (the fit and validation starts, 4/5) and tested (1/5).
     pub samples: (usize, usize),
 }
 

@@ -9,8 +9,9 @@
 //! probe of the policy encoder's features for the pose and the return-to-go, against
 //! the same probe on an untrained encoder; the critic's Q against the soft Monte-Carlo
 //! return; α and the policy's entropy; and the training's last logged state (replay
-//! terminal share, α, entropy, mean Q of the batch). Needs the run's full checkpoint
-//! (the critic), not a results folder's acting files. Writes `diagnosis.txt`,
+//! terminal share, α, entropy, mean Q of the batch). Needs the checkpoint's online
+//! networks and α (`pednav_learner::agent_files`: a run's checkpoint, or a results
+//! folder that keeps them), not only the acting files. Writes `diagnosis.txt`,
 //! `diagnosis.json` and `q_vs_return.png` to `--out` (default `<run>/diagnosis`).
 
 use std::path::{Path, PathBuf};
@@ -82,7 +83,7 @@ fn main() -> Result<()> {
     let ckpt = cli.checkpoint.clone().unwrap_or_else(|| cli.run_dir.join("checkpoints").join("learner"));
     let device = candle_core::Device::Cpu;
     let agent = pednav_learner::load_agent(&ckpt, &device).with_context(|| {
-        format!("loading the full checkpoint {} (a results folder keeps only the acting networks)", ckpt.display())
+        format!("loading the online networks of {} (pednav-diagnose also reads the critic: a folder with only the acting files is not enough)", ckpt.display())
     })?;
     if agent.meta.nets != cfg.nets {
         bail!("{}: the checkpoint's networks differ from {}", ckpt.display(), cfg_path.display());
