@@ -29,6 +29,8 @@ use crate::rate::RateLimiter;
 pub const FORMAT: u32 = 1;
 const STATE_FILE: &str = "state.json";
 const OPTIM_FILE: &str = "optimizer.safetensors";
+/// Name of the temperature's store (and, with `.safetensors`, its file).
+pub(crate) const LOG_ALPHA: &str = "log_alpha";
 
 /// The state file of a checkpoint.
 #[derive(Debug, Clone, Serialize, Deserialize)]
@@ -220,13 +222,10 @@ pub fn load_agent(dir: &Path, device: &Device) -> Result<TrainedAgent> {
     if meta.twin_critics {
         nets = nets.with_twin_critic(0)?;
     }
-    let mut log_alpha = ParamStore::new("log_alpha", device);
-    log_alpha.insert("log_alpha", Tensor::zeros(1, candle_core::DType::F32, device)?)?;
+    let mut log_alpha = ParamStore::new(LOG_ALPHA, device);
+    log_alpha.insert(LOG_ALPHA, Tensor::zeros(1, candle_core::DType::F32, device)?)?;
     // The online networks only: the Polyak targets play no part in acting or in Q(s, a).
-    let mut stores = vec![&nets.policy.store, &nets.fraction.store, &nets.quantile.store];
-    if let Some(twin) = &nets.twin {
-        stores.push(&twin.quantile.store);
-    }
+    let mut stores = nets.online_stores();
     stores.push(&log_alpha);
     load_stores(dir, &meta, &stores)?;
     let alpha = f64::from(log_alpha.tensors()["log_alpha"].to_vec1::<f32>()?[0]).exp();
@@ -243,13 +242,10 @@ pub fn acting_files(nets: &DsacNets) -> Vec<String> {
 
 /// The files of a checkpoint that [`load_agent`] reads: the state file, the online
 /// networks' weights and the temperature — what a results folder keeps to be diagnosed.
-pub fn agent_files(twin_critics: bool) -> Vec<String> {
-    let mut files = vec![STATE_FILE, "policy.safetensors", "fraction.safetensors", "quantile.safetensors"];
-    if twin_critics {
-        files.push("quantile2.safetensors");
-    }
-    files.push("log_alpha.safetensors");
-    files.into_iter().map(str::to_string).collect()
+pub fn agent_files(nets: &DsacNets) -> Vec<String> {
+    std::iter::once(STATE_FILE.to_string())
+        .chain(nets.online_stores().iter().map(|s| s.name()).chain([LOG_ALPHA]).map(|n| format!("{n}.safetensors")))
+        .collect()
 }
 
 /// Restore `dsac` from the checkpoint in `dir`. Everything is verified first; on

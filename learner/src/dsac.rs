@@ -131,8 +131,8 @@ impl Dsac {
         if cfg.twin_critics {
             nets = nets.with_twin_critic(seed)?;
         }
-        let mut log_alpha = ParamStore::new("log_alpha", device);
-        log_alpha.insert("log_alpha", Tensor::new(&[cfg.initial_alpha.ln() as f32], device)?)?;
+        let mut log_alpha = ParamStore::new(crate::checkpoint::LOG_ALPHA, device);
+        log_alpha.insert(crate::checkpoint::LOG_ALPHA, Tensor::new(&[cfg.initial_alpha.ln() as f32], device)?)?;
         let opt = |store: &ParamStore, lr: f64| {
             AdamW::new(store, AdamWConfig { max_grad_norm: cfg.max_grad_norm, ..AdamWConfig::with_lr(lr) })
         };

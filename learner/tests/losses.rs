@@ -336,7 +336,8 @@ fn checkpoints_round_trip_bit_exactly_and_bad_ones_change_nothing() {
     // one of the files the load names it.
     let diag = dir.join("diagnosed");
     std::fs::create_dir_all(&diag).unwrap();
-    let files = agent_files(true);
+    let files = agent_files(&e.nets);
+    assert_eq!(files.len(), 6, "state, policy, fraction, quantile, quantile2, log α: {files:?}");
     for file in &files {
         std::fs::copy(twin_ck.join(file), diag.join(file)).unwrap();
     }

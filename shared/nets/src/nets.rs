@@ -190,6 +190,16 @@ impl DsacNets {
         stores
     }
 
+    /// The online networks — policy, fraction, quantile and the twin critic's quantile
+    /// net — without the Polyak targets: what acting and Q(s, a) read.
+    pub fn online_stores(&self) -> Vec<&ParamStore> {
+        let mut stores = vec![&self.policy.store, &self.fraction.store, &self.quantile.store];
+        if let Some(twin) = &self.twin {
+            stores.push(&twin.quantile.store);
+        }
+        stores
+    }
+
     /// What the actors need: the policy store plus, with a shared encoder, the
     /// quantile store (which holds the encoder).
     pub fn acting_stores(&self) -> Vec<&ParamStore> {
