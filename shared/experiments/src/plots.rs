@@ -216,6 +216,26 @@ fn draw_chart(area: &DrawingArea<BitMapBackend<'_>, Shift>, panel: &Panel, hline
     Ok(())
 }
 
+/// A run's `metrics/learner.csv`: its column names and rows (a value that is absent
+/// or not a number reads as NaN); an error when the file is missing or has no rows.
+pub fn learner_log(run: &Path) -> Result<(Vec<String>, Vec<Vec<f64>>)> {
+    let path = run.join("metrics").join("learner.csv");
+    let text = std::fs::read_to_string(&path).map_err(|e| {
+        ExperimentError::file(&path, format!("no learner log (the learner writes it during a run): {e}"))
+    })?;
+    let mut lines = text.lines();
+    let header: Vec<String> =
+        lines.next().ok_or_else(|| ExperimentError::file(&path, "empty"))?.split(',').map(str::to_string).collect();
+    let rows: Vec<Vec<f64>> = lines
+        .map(|l| l.split(',').map(|v| v.parse::<f64>().unwrap_or(f64::NAN)).collect::<Vec<f64>>())
+        .filter(|r| r.len() == header.len())
+        .collect();
+    if rows.is_empty() {
+        return Err(ExperimentError::file(&path, "no rows yet"));
+    }
+    Ok((header, rows))
+}
+
 /// An axis label: 1,500 → "1.5k", 200,000 → "200k", 3,000,000 → "3M", 0.25 → "0.25".
 pub fn short_number(v: f64) -> String {
     let trim = |s: String| if s.contains('.') { s.trim_end_matches('0').trim_end_matches('.').to_string() } else { s };

@@ -63,11 +63,8 @@ struct Cli {
 
 /// The last row of the learner's metrics as (column, value) pairs, when the run has one.
 fn last_learner_metrics(run_dir: &Path) -> Option<Vec<(String, f64)>> {
-    let text = std::fs::read_to_string(run_dir.join("metrics").join("learner.csv")).ok()?;
-    let mut lines = text.lines();
-    let header: Vec<&str> = lines.next()?.split(',').collect();
-    let last: Vec<f64> = lines.last()?.split(',').map(|v| v.parse().unwrap_or(f64::NAN)).collect();
-    Some(header.iter().map(|h| h.to_string()).zip(last).collect())
+    let (header, rows) = plots::learner_log(run_dir).ok()?;
+    Some(header.into_iter().zip(rows.last()?.iter().copied()).collect())
 }
 
 fn main() -> Result<()> {

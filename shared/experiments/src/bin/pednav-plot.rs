@@ -213,25 +213,6 @@ const LEARNER_PANELS: [(&str, &str, &str); 6] = [
     ("terminal_share", "replay: terminal share of stored transitions", "share"),
 ];
 
-/// Columns of a run's `metrics/learner.csv` by name (a value that is absent or not a
-/// number reads as NaN and is left out of the curves).
-fn learner_metrics(run: &Path) -> Result<(Vec<String>, Vec<Vec<f64>>)> {
-    let path = run.join("metrics").join("learner.csv");
-    let text = std::fs::read_to_string(&path)
-        .with_context(|| format!("{}: no learner log (the learner writes it during a run)", path.display()))?;
-    let mut lines = text.lines();
-    let header: Vec<String> =
-        lines.next().with_context(|| format!("{}: empty", path.display()))?.split(',').map(str::to_string).collect();
-    let rows: Vec<Vec<f64>> = lines
-        .map(|l| l.split(',').map(|v| v.parse::<f64>().unwrap_or(f64::NAN)).collect::<Vec<f64>>())
-        .filter(|r| r.len() == header.len())
-        .collect();
-    if rows.is_empty() {
-        bail!("{}: no rows yet", path.display());
-    }
-    Ok((header, rows))
-}
-
 fn learner(runs: &[PathBuf], out: &Path) -> Result<()> {
     let mut panels: Vec<plots::Panel> = LEARNER_PANELS
         .iter()
@@ -243,7 +224,7 @@ fn learner(runs: &[PathBuf], out: &Path) -> Result<()> {
         })
         .collect();
     for (i, run) in runs.iter().enumerate() {
-        let (header, rows) = learner_metrics(run)?;
+        let (header, rows) = plots::learner_log(run)?;
         let col = |n: &str| header.iter().position(|h| h == n);
         let step = col("step").with_context(|| format!("{}: learner log without `step`", run.display()))?;
         let name = run.file_name().map_or("run".into(), |n| n.to_string_lossy().to_string());
