@@ -71,7 +71,7 @@ start=$(date +%s)
 
 if [ "$mode" = check ]; then
     cargo check --locked --target-dir "$target" "${features[@]}" \
-        -p pednav-nets -p pednav-learner -p pednav-learner-process -p pednav-actor -p pednav-experiments --all-targets
+        -p pednav-nets -p pednav-learner -p pednav-actor -p pednav-experiments --all-targets
     echo "build_cuda.sh: CUDA build checks ($(( $(date +%s) - start )) s)" >&2
     exit 0
 fi
@@ -100,7 +100,7 @@ rm -rf "$stub_src"
 
 bins=(pednav-run pednav-learner pednav-device-check pednav-actor pednav-curriculum pednav-eval)
 cargo build --release --locked --target-dir "$target" "${features[@]}" \
-    -p pednav-runtime -p pednav-learner-process -p pednav-actor -p pednav-curriculum-service -p pednav-experiments
+    -p pednav-launcher -p pednav-learner -p pednav-actor -p pednav-curriculum -p pednav-experiments
 if [ "$mode" = bins ]; then
     echo "build_cuda.sh: binaries in $target/release ($(( $(date +%s) - start )) s)" >&2
     exit 0

@@ -4,15 +4,8 @@
 #[derive(Debug, thiserror::Error)]
 pub enum CurriculumError {
     /// A setting is out of range.
-    #[error("invalid curriculum setting `{field}` = {value}: {message}")]
-    Config {
-        /// The offending field.
-        field: &'static str,
-        /// Its value, as text.
-        value: String,
-        /// The allowed range.
-        message: String,
-    },
+    #[error(transparent)]
+    Config(#[from] pednav_config::ConfigError),
     /// No valid start pose was found in the curriculum region.
     #[error("no valid task found in the curriculum region after {tries} draws; is the region free of obstacles?")]
     NoValidTask {

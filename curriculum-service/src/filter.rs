@@ -8,25 +8,9 @@
 
 use serde::{Deserialize, Serialize};
 
-use crate::config::{CurriculumConfig, Variant};
+pub use pednav_config::Category;
 
-/// Where a proposed task came from.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
-#[serde(rename_all = "snake_case")]
-pub enum Category {
-    /// The scene's first task (before PassFirstTask).
-    First,
-    /// The scene's fixed start (Non-ACL variants).
-    Fixed,
-    /// f > μ + β_e·σ.
-    Easy,
-    /// μ − β_f^l·σ < f < μ + β_f^h·σ.
-    Frontier,
-    /// Any candidate.
-    Random,
-    /// f < μ − β_h·σ (Hard variant).
-    Hard,
-}
+use crate::config::{CurriculumConfig, Variant};
 
 /// Mean and standard deviation of the candidates' predicted returns.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]

@@ -7,12 +7,13 @@
 //! region ([`sampler`]) and the [`TaskScheduler`] that proposes tasks, with the
 //! return/success predictor behind the [`ReturnPredictor`] trait.
 //!
-//! [`Curriculum`] runs Algorithm 1 around them with the candle task-value net
-//! ([`net`]): f^r trained on the augmented tasks of every step (NavACL⁺) or f^s on
+//! [`Curriculum`] runs Algorithm 1 around them with the task-value net ([`net`], on
+//! `pednav-nets`): f^r trained on the augmented tasks of every step (NavACL⁺) or f^s on
 //! initial tasks (NavACL), every Δ_ep episodes.
 //!
 //! [`classify`] draws the task classification over the region (Fig. 4) and holds
-//! the service's saved state; the service process itself is `process/`.
+//! the service's saved state; the service process itself is the `pednav-curriculum`
+//! binary (`src/bin/pednav-curriculum/`).
 
 #![warn(missing_docs)]
 
@@ -33,7 +34,7 @@ pub use curriculum::{Curriculum, CurriculumState, EpisodeOutcome, ReportSummary}
 pub use error::{CurriculumError, Result};
 pub use filter::{Bands, Category, Fit};
 pub use gate::PassFirstTask;
-pub use net::{NetConfig, NetState, Target, TaskValueNet};
+pub use net::{NetState, Target, TaskNetConfig, TaskValueNet};
 pub use returns::{discounted_returns, task_features};
 pub use sampler::TaskSampler;
 pub use scheduler::{Proposal, ReturnPredictor, SchedulerState, TaskScheduler};

@@ -7,16 +7,23 @@
 //! → 1 with ReLU. Training: AdamW (lr 1e-3, weight decay 0, Table IV's lr), shuffled
 //! minibatches of 64, `epochs` passes over the collected set per training round.
 //!
-//! Invariant: weights are initialised from the given seed (candle's own
-//! initialisers draw from an unseeded RNG, so they are not used), and minibatch
-//! order comes from a seeded RNG: a run is reproducible.
+//! Built on `pednav-nets` (its seeded [`Dense`] layers, [`ParamStore`] and the
+//! checkpointable [`AdamW`]), like the DSAC networks: weights are initialised from
+//! the given seed and minibatch order comes from a seeded RNG, so a run is
+//! reproducible, and the saved state holds Adam's moments, so a resumed net
+//! continues exactly where it stopped.
 
-use candle_core::{D, DType, Device, Tensor, Var};
-use candle_nn::{AdamW, Linear, Module, Optimizer, ParamsAdamW};
+use std::collections::HashMap;
+
+use candle_core::{D, DType, Device, Tensor};
+use pednav_nets::layers::Dense;
+use pednav_nets::{AdamW, AdamWConfig, ParamStore};
+use rand::SeedableRng;
 use rand::seq::SliceRandom;
-use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
+
+pub use pednav_config::TaskNetConfig;
 
 use crate::scheduler::ReturnPredictor;
 
@@ -30,35 +37,13 @@ pub enum Target {
     Success,
 }
 
-/// Settings of the task-value network.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields, default)]
-pub struct NetConfig {
-    /// Hidden layer widths. The paper gives none; two layers of 64 fit a smooth
-    /// function of three features without overfitting the few thousand samples of a round.
-    pub hidden: Vec<usize>,
-    /// Learning rate. Table IV: 1e-3.
-    pub lr: f64,
-    /// Minibatch size. Table IV: 64.
-    pub batch: usize,
-    /// Passes over the collected set per training round. The paper does not say;
-    /// 5 lets a round's data move the net noticeably while Δ_ep keeps rounds frequent.
-    pub epochs: usize,
-}
-
-impl Default for NetConfig {
-    fn default() -> Self {
-        NetConfig { hidden: vec![64, 64], lr: 1e-3, batch: 64, epochs: 5 }
-    }
-}
-
 /// The MLP and its optimiser.
 pub struct TaskValueNet {
-    layers: Vec<Linear>,
-    vars: Vec<Var>,
+    store: ParamStore,
+    layers: Vec<Dense>,
     opt: AdamW,
     target: Target,
-    cfg: NetConfig,
+    cfg: TaskNetConfig,
     rng: ChaCha8Rng,
 }
 
@@ -68,77 +53,142 @@ pub fn encode(features: &[[f32; 3]]) -> Tensor {
     Tensor::from_vec(data, (features.len(), 4), &Device::Cpu).expect("shape matches data")
 }
 
-/// Saved state of a [`TaskValueNet`].
+/// One named tensor of a saved [`NetState`].
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct SavedTensor {
+    /// Parameter (`layer0.w`, …) or moment (`layer0.w.m`, …) name.
+    pub name: String,
+    /// Shape.
+    pub shape: Vec<usize>,
+    /// Values, row-major.
+    pub values: Vec<f32>,
+}
+
+impl SavedTensor {
+    fn of(name: &str, t: &Tensor) -> candle_core::Result<SavedTensor> {
+        Ok(SavedTensor { name: name.to_string(), shape: t.dims().to_vec(), values: t.flatten_all()?.to_vec1()? })
+    }
+}
+
+/// Saved state of a [`TaskValueNet`]: parameters, Adam's moments and step count, and
+/// the minibatch-order RNG.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct NetState {
-    /// Every parameter, flattened, in layer order (weight, bias, …).
-    pub weights: Vec<Vec<f32>>,
+    /// Every parameter, by name.
+    #[serde(default)]
+    pub params: Vec<SavedTensor>,
+    /// Adam's first and second moments, by name.
+    #[serde(default)]
+    pub moments: Vec<SavedTensor>,
+    /// Adam steps taken.
+    #[serde(default)]
+    pub adam_steps: u64,
+    /// A state saved before the net moved to `pednav-nets` (candle-nn's layout: per
+    /// layer the weight as (out, in), then the bias; no moments). [`TaskValueNet::restore`]
+    /// converts it; new states never write it.
+    #[serde(default, rename = "weights", skip_serializing_if = "Option::is_none")]
+    pub legacy_weights: Option<Vec<Vec<f32>>>,
     /// The minibatch-order RNG.
     pub rng: ChaCha8Rng,
 }
 
+fn tensors_of(saved: &[SavedTensor]) -> candle_core::Result<HashMap<String, Tensor>> {
+    saved
+        .iter()
+        .map(|t| {
+            if t.shape.iter().product::<usize>() != t.values.len() {
+                candle_core::bail!("saved tensor `{}` has {} values for shape {:?}", t.name, t.values.len(), t.shape);
+            }
+            Ok((t.name.clone(), Tensor::from_slice(&t.values, t.shape.as_slice(), &Device::Cpu)?))
+        })
+        .collect()
+}
+
 impl TaskValueNet {
     /// A freshly initialised network (uniform ±1/√fan_in, seeded).
-    pub fn new(cfg: NetConfig, target: Target, seed: u64) -> candle_core::Result<TaskValueNet> {
+    pub fn new(cfg: TaskNetConfig, target: Target, seed: u64) -> candle_core::Result<TaskValueNet> {
         let mut rng = ChaCha8Rng::seed_from_u64(seed);
+        let mut store = ParamStore::new("task_value", &Device::Cpu);
         let mut sizes = vec![4];
         sizes.extend(&cfg.hidden);
         sizes.push(1);
-        let mut layers = Vec::new();
-        let mut vars = Vec::new();
-        for w in sizes.windows(2) {
-            let (fan_in, fan_out) = (w[0], w[1]);
-            let bound = 1.0 / (fan_in as f32).sqrt();
-            let weight: Vec<f32> = (0..fan_in * fan_out).map(|_| rng.random_range(-bound..bound)).collect();
-            let bias: Vec<f32> = (0..fan_out).map(|_| rng.random_range(-bound..bound)).collect();
-            let weight = Var::from_tensor(&Tensor::from_vec(weight, (fan_out, fan_in), &Device::Cpu)?)?;
-            let bias = Var::from_tensor(&Tensor::from_vec(bias, fan_out, &Device::Cpu)?)?;
-            layers.push(Linear::new(weight.as_tensor().clone(), Some(bias.as_tensor().clone())));
-            vars.push(weight);
-            vars.push(bias);
-        }
-        let opt = AdamW::new(vars.clone(), ParamsAdamW { lr: cfg.lr, weight_decay: 0.0, ..Default::default() })?;
-        Ok(TaskValueNet { layers, vars, opt, target, cfg, rng })
+        let layers = sizes
+            .windows(2)
+            .enumerate()
+            .map(|(i, w)| Dense::new(&mut store, &format!("layer{i}"), w[0], w[1], &mut rng))
+            .collect::<pednav_nets::Result<Vec<_>>>()
+            .map_err(candle_core::Error::wrap)?;
+        let opt = AdamW::new(&store, AdamWConfig::with_lr(cfg.lr)).map_err(candle_core::Error::wrap)?;
+        Ok(TaskValueNet { store, layers, opt, target, cfg, rng })
     }
 
-    /// Weights and minibatch RNG, for saving with the run's checkpoints. The
-    /// optimiser's moments are not included (candle-nn keeps them private): a
-    /// resumed net restarts Adam's moments, which for this small MLP re-converge
-    /// within one training round.
+    /// Parameters, Adam's moments and the minibatch RNG, for saving with the run's
+    /// checkpoints.
     pub fn state(&self) -> candle_core::Result<NetState> {
-        let weights = self
-            .vars
+        let params = self
+            .store
+            .vars()
             .iter()
-            .map(|v| v.as_tensor().flatten_all()?.to_vec1::<f32>())
+            .map(|(n, v)| SavedTensor::of(n, v.as_tensor()))
             .collect::<candle_core::Result<_>>()?;
-        Ok(NetState { weights, rng: self.rng.clone() })
+        let moments =
+            self.opt.state_tensors().iter().map(|(n, t)| SavedTensor::of(n, t)).collect::<candle_core::Result<_>>()?;
+        Ok(NetState { params, moments, adam_steps: self.opt.steps(), legacy_weights: None, rng: self.rng.clone() })
     }
 
-    /// Restore what [`TaskValueNet::state`] saved; the shapes must match this net's config.
+    /// Restore what [`TaskValueNet::state`] saved; every tensor is checked against
+    /// this net's config before anything changes.
     pub fn restore(&mut self, state: &NetState) -> candle_core::Result<()> {
-        if state.weights.len() != self.vars.len() {
-            candle_core::bail!(
-                "saved task-value net has {} tensors, this config {}",
-                state.weights.len(),
-                self.vars.len()
-            );
+        let wrap = |e: pednav_nets::NetError| candle_core::Error::Msg(format!("saved task-value net: {e}"));
+        if let (true, Some(legacy)) = (state.params.is_empty(), &state.legacy_weights) {
+            let params = self.convert_legacy(legacy)?;
+            self.store.check(&params).map_err(wrap)?;
+            self.store.load(&params).map_err(wrap)?;
+            self.rng = state.rng.clone();
+            return Ok(());
         }
-        for (v, w) in self.vars.iter().zip(&state.weights) {
-            let shape = v.as_tensor().shape().clone();
-            if shape.elem_count() != w.len() {
-                candle_core::bail!("saved tensor of {} values for a {:?} parameter", w.len(), shape);
-            }
-            v.set(&Tensor::from_slice(w, shape, &Device::Cpu)?)?;
-        }
+        let params = tensors_of(&state.params)?;
+        let moments = tensors_of(&state.moments)?;
+        self.store.check(&params).map_err(wrap)?;
+        self.opt.check_state(&moments).map_err(wrap)?;
+        self.store.load(&params).map_err(wrap)?;
+        self.opt.load_state(state.adam_steps, &moments).map_err(wrap)?;
         self.rng = state.rng.clone();
         Ok(())
+    }
+
+    /// This net's parameters from a legacy state: candle-nn's weight (out, in) is
+    /// this layer's (in, out) transposed.
+    fn convert_legacy(&self, legacy: &[Vec<f32>]) -> candle_core::Result<HashMap<String, Tensor>> {
+        if legacy.len() != 2 * self.layers.len() {
+            candle_core::bail!(
+                "saved task-value net has {} tensors, this config {}",
+                legacy.len(),
+                2 * self.layers.len()
+            );
+        }
+        let mut out = HashMap::new();
+        for (i, pair) in legacy.chunks_exact(2).enumerate() {
+            let (fan_in, fan_out) = {
+                let w = &self.store.vars().iter().find(|(n, _)| *n == format!("layer{i}.w")).expect("layer").1;
+                let d = w.dims();
+                (d[0], d[1])
+            };
+            if pair[0].len() != fan_in * fan_out || pair[1].len() != fan_out {
+                candle_core::bail!("saved layer {i} does not match a {fan_in} → {fan_out} layer");
+            }
+            let w = Tensor::from_slice(&pair[0], (fan_out, fan_in), &Device::Cpu)?.t()?.contiguous()?;
+            out.insert(format!("layer{i}.w"), w);
+            out.insert(format!("layer{i}.b"), Tensor::from_slice(&pair[1], fan_out, &Device::Cpu)?);
+        }
+        Ok(out)
     }
 
     /// Raw output (N,): the return, or the success logit.
     fn forward(&self, x: &Tensor) -> candle_core::Result<Tensor> {
         let mut h = x.clone();
         for (i, l) in self.layers.iter().enumerate() {
-            h = l.forward(&h)?;
+            h = l.forward(&h).map_err(candle_core::Error::wrap)?;
             if i + 1 < self.layers.len() {
                 h = h.relu()?;
             }
@@ -177,7 +227,8 @@ impl TaskValueNet {
                     Target::Return => (out - y)?.sqr()?.mean_all()?,
                     Target::Success => candle_nn::loss::binary_cross_entropy_with_logit(&out, &y)?,
                 };
-                self.opt.backward_step(&loss)?;
+                let grads = loss.backward()?;
+                self.opt.step(&grads).map_err(candle_core::Error::wrap)?;
                 total += loss.to_scalar::<f32>()?;
                 batches += 1;
             }
@@ -206,7 +257,8 @@ mod tests {
                 ([dx, dy, 0.3 * k as f32], 5.0 - dx.hypot(dy))
             })
             .collect();
-        let mut net = TaskValueNet::new(NetConfig { epochs: 40, ..NetConfig::default() }, Target::Return, 0).unwrap();
+        let mut net =
+            TaskValueNet::new(TaskNetConfig { epochs: 40, ..TaskNetConfig::default() }, Target::Return, 0).unwrap();
         let first = net.train(&data).unwrap();
         let mut last = first;
         for _ in 0..10 {
@@ -219,8 +271,8 @@ mod tests {
 
     #[test]
     fn same_seed_same_weights() {
-        let a = TaskValueNet::new(NetConfig::default(), Target::Success, 7).unwrap();
-        let b = TaskValueNet::new(NetConfig::default(), Target::Success, 7).unwrap();
+        let a = TaskValueNet::new(TaskNetConfig::default(), Target::Success, 7).unwrap();
+        let b = TaskValueNet::new(TaskNetConfig::default(), Target::Success, 7).unwrap();
         let f = [[1.0, 2.0, 0.5]];
         assert_eq!(a.predict_values(&f).unwrap(), b.predict_values(&f).unwrap());
         let p = a.predict_values(&f).unwrap()[0];
@@ -230,16 +282,47 @@ mod tests {
     #[test]
     fn state_round_trip_restores_predictions_and_rng() {
         let data: Vec<([f32; 3], f32)> = (0..64).map(|k| ([k as f32 * 0.3, 1.0, 0.0], k as f32 * 0.1)).collect();
-        let mut a = TaskValueNet::new(NetConfig::default(), Target::Return, 1).unwrap();
+        let mut a = TaskValueNet::new(TaskNetConfig::default(), Target::Return, 1).unwrap();
         a.train(&data).unwrap();
         let saved = a.state().unwrap();
-        let mut b = TaskValueNet::new(NetConfig::default(), Target::Return, 99).unwrap();
+        let mut b = TaskValueNet::new(TaskNetConfig::default(), Target::Return, 99).unwrap();
         b.restore(&saved).unwrap();
         let f = [[3.0, -2.0, 1.0]];
         assert_eq!(a.predict_values(&f).unwrap(), b.predict_values(&f).unwrap());
-        assert_eq!(a.state().unwrap().rng, b.state().unwrap().rng);
+        assert_eq!(a.state().unwrap(), b.state().unwrap(), "weights, moments, steps and RNG");
+        // Adam's moments came back too: one more round is identical on both.
+        assert_eq!(a.train(&data).unwrap(), b.train(&data).unwrap());
+        assert_eq!(a.state().unwrap(), b.state().unwrap());
         let mut small =
-            TaskValueNet::new(NetConfig { hidden: vec![8], ..NetConfig::default() }, Target::Return, 0).unwrap();
+            TaskValueNet::new(TaskNetConfig { hidden: vec![8], ..TaskNetConfig::default() }, Target::Return, 0)
+                .unwrap();
         assert!(small.restore(&saved).is_err(), "another architecture is refused");
+    }
+
+    /// A state written before the net moved to `pednav-nets` (candle-nn's (out, in)
+    /// weights, no moments) restores to the same function: its prediction equals
+    /// relu(x·W₀ᵀ + b₀)·W₁ᵀ + b₁ computed by hand.
+    #[test]
+    fn a_legacy_state_restores_the_same_function() {
+        let cfg = TaskNetConfig { hidden: vec![2], ..TaskNetConfig::default() };
+        // Layer 0: 4 → 2 as (out, in); layer 1: 2 → 1.
+        let w0 = vec![0.5, -1.0, 0.25, 2.0, /* row 2 */ -0.5, 1.0, 1.5, 0.0];
+        let (b0, w1, b1) = (vec![0.1, -0.2], vec![2.0, -3.0], vec![0.7]);
+        let json = serde_json::json!({
+            "weights": [w0, b0, w1, b1],
+            "rng": ChaCha8Rng::seed_from_u64(5),
+        });
+        let legacy: NetState = serde_json::from_value(json).unwrap();
+        assert!(legacy.params.is_empty() && legacy.legacy_weights.is_some());
+        let mut net = TaskValueNet::new(cfg, Target::Return, 9).unwrap();
+        net.restore(&legacy).unwrap();
+        let f = [3.0f32, -4.0, 0.3];
+        let x = [f[0] / 20.0, f[1] / 20.0, f[2].sin(), f[2].cos()];
+        let h: Vec<f32> =
+            (0..2).map(|o| (b0[o] + (0..4).map(|i| w0[o * 4 + i] * x[i]).sum::<f32>()).max(0.0)).collect();
+        let by_hand = b1[0] + w1[0] * h[0] + w1[1] * h[1];
+        let got = net.predict_values(&[f]).unwrap()[0];
+        assert!((got - by_hand).abs() < 1e-5, "{got} vs {by_hand}");
+        assert!(net.state().unwrap().legacy_weights.is_none(), "new states are written in the new form");
     }
 }

@@ -6,7 +6,7 @@
 //! ended in the goal — the paper's G_{t:T}.
 
 use pednav_sim::Pose;
-use pednav_sim::pedestrian::wrap_angle;
+use pednav_sim::scene::wrap_angle;
 
 /// Task features φ(s, s_g) = (dx, dy, yaw): the goal's offset from the pose along
 /// x and y in metres, and the pose's yaw in radians in (−π, π].

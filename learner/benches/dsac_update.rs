@@ -2,8 +2,10 @@
 //! and the CPU preset's network configurations, with and without replay sampling,
 //! and the actor's policy step (full recompute vs streaming cache).
 //!
-//! `cargo bench -p pednav-learner --bench dsac_update [-- --quick] [-- --only a,c,act] [-- --json FILE] [-- --device cuda]`
-//! (`--only` takes the update keys a–d and `act` for the actor's policy step)
+//! `cargo bench -p pednav-learner --bench dsac_update [-- --quick] [-- --only a,c,act] [-- --json FILE] [-- --device cuda] [-- --state-aux W]`
+//! (`--only` takes the update keys a–d and `act` for the actor's policy step;
+//! `--state-aux W` turns on the state-prediction auxiliary loss with weight W, to
+//! measure its cost against a run without it)
 //!
 //! The custom kernels run on the instruction set [`Isa::active`] picks (the best of
 //! this CPU, or `PEDNAV_ISA=baseline|avx2|avx512`); the bench prints which. With
@@ -131,6 +133,8 @@ fn main() {
     let value_of = |flag: &str| args.iter().position(|a| a == flag).and_then(|i| args.get(i + 1)).cloned();
     let only: Option<Vec<String>> = value_of("--only").map(|v| v.split(',').map(String::from).collect());
     let json_path = value_of("--json");
+    let state_aux: f64 =
+        value_of("--state-aux").map_or(Ok(0.0), |w| w.parse()).unwrap_or_else(|e| panic!("--state-aux: {e}"));
     let device_spec: pednav_nets::DeviceSpec =
         value_of("--device").map_or(Ok(Default::default()), |d| d.parse()).unwrap_or_else(|e| panic!("--device: {e}"));
     let device = device_spec.open().unwrap_or_else(|e| panic!("{e}"));
@@ -159,12 +163,20 @@ fn main() {
             continue;
         }
         // One critic, as the PyTorch reference (`dsac_ref.py`) implements the update.
-        let cfg =
-            DsacConfig { batch_size: case.batch, warmup: case.batch as u64, twin_critics: false, ..Default::default() };
+        let cfg = DsacConfig {
+            batch_size: case.batch,
+            warmup: case.batch as u64,
+            twin_critics: false,
+            state_aux_weight: state_aux,
+            ..Default::default()
+        };
         let mut dsac = Dsac::new(&cfg, &case.nets, &device, 0).unwrap();
         let rc = ReplayConfig { nonterminal_capacity: 5_000, terminal_capacity: 100 };
         let mut replay =
             DualReplay::new(&rc, FrameKind::Pixels { size: case.nets.image_size }, case.nets.history, &device).unwrap();
+        if state_aux > 0.0 {
+            replay = replay.with_state_targets(case.nets.state_dim).unwrap();
+        }
         fill_replay(&mut replay, FrameKind::Pixels { size: case.nets.image_size }, 3_000, &mut rng).unwrap();
         let reps = if quick || case.key == "a" { 3 } else { 10 };
         let batch = replay.sample(case.batch, &mut rng).unwrap();

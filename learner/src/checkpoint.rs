@@ -43,6 +43,10 @@ pub struct CheckpointMeta {
     /// checkpoints written before the option existed: `false`).
     #[serde(default)]
     pub twin_critics: bool,
+    /// Whether the checkpoint holds the state-prediction head and its optimiser
+    /// (`dsac.state_aux_weight` > 0; absent in older checkpoints: `false`).
+    #[serde(default)]
+    pub state_head: bool,
     /// Updates applied.
     pub updates: u64,
     /// Updates skipped by the non-finite guard.
@@ -109,6 +113,7 @@ pub fn save_checkpoint(
         format: FORMAT,
         nets: dsac.nets.cfg.clone(),
         twin_critics: dsac.nets.twin.is_some(),
+        state_head: dsac.nets.state_head.is_some(),
         updates: dsac.updates,
         skipped: dsac.skipped,
         optimizer_steps,
@@ -133,6 +138,11 @@ pub fn save_checkpoint(
         fs::remove_dir_all(&old).map_err(|e| ck_err(&old, e.to_string()))?;
     }
     Ok(())
+}
+
+/// Whether `dir` holds a checkpoint (its state file) — what a resume looks for.
+pub fn checkpoint_exists(dir: &Path) -> bool {
+    dir.join(STATE_FILE).is_file()
 }
 
 /// Read the state file of the checkpoint in `dir` without loading weights.
@@ -264,6 +274,16 @@ pub fn load_checkpoint(dir: &Path, dsac: &mut Dsac) -> Result<CheckpointMeta> {
         return Err(ck_err(
             dir,
             format!("it {has} twin critic and the learner is configured {wants} one (`dsac.twin_critics`)"),
+        ));
+    }
+    if meta.state_head != dsac.nets.state_head.is_some() {
+        let (has, wants) = if meta.state_head { ("has a", "0") } else { ("has no", "> 0") };
+        return Err(ck_err(
+            dir,
+            format!(
+                "it {has} state-prediction head and the learner is configured with `dsac.state_aux_weight` {wants}: \
+                 resume with the setting the run was started with"
+            ),
         ));
     }
     let dev = dsac.nets.policy.store.device().clone();

@@ -15,10 +15,10 @@ use rand_chacha::ChaCha8Rng;
 
 use pednav_nets::{NetsConfig, ParamStore};
 
-use crate::config::DsacConfig;
 use crate::dsac::{Dsac, UpdateStats};
 use crate::error::Result;
 use crate::replay::{DualReplay, Frame, FrameKind, ReplayConfig, Step};
+use pednav_config::DsacConfig;
 
 /// Fill `replay` with `steps` synthetic transitions from `rng`: random frames (or
 /// state vectors), actions and rewards, episodes of 100 steps of which every third
@@ -29,9 +29,10 @@ pub fn fill_replay(replay: &mut DualReplay, kind: FrameKind, steps: usize, rng: 
         FrameKind::State { dim } => (0, dim),
     };
     let (mut frame, mut state) = (vec![0u8; pixels], vec![0f32; values]);
+    let mut target = vec![0f32; replay.state_target_dim()];
     for i in 0..steps {
         rng.fill(&mut frame[..]);
-        for v in state.iter_mut() {
+        for v in state.iter_mut().chain(target.iter_mut()) {
             *v = rng.random_range(-1.0..1.0);
         }
         let t = i % 100;
@@ -47,6 +48,7 @@ pub fn fill_replay(replay: &mut DualReplay, kind: FrameKind, steps: usize, rng: 
             action,
             reward: -0.1,
             terminal: t == 99 && i % 300 == 99,
+            state_target: (!target.is_empty()).then_some(&target[..]),
         })?;
     }
     Ok(())
@@ -95,6 +97,9 @@ pub fn compare_update(
         let mut dsac = Dsac::new(cfg, nets, device, seed)?;
         let rc = ReplayConfig { nonterminal_capacity: 4 * cfg.batch_size, terminal_capacity: cfg.batch_size };
         let mut replay = DualReplay::new(&rc, kind, nets.history, device)?;
+        if cfg.state_aux_weight > 0.0 {
+            replay = replay.with_state_targets(nets.state_dim)?;
+        }
         let mut rng = ChaCha8Rng::seed_from_u64(seed);
         fill_replay(&mut replay, kind, 3 * cfg.batch_size, &mut rng)?;
         let batch = replay.sample(cfg.batch_size, &mut rng)?;

@@ -17,19 +17,27 @@
 //! two); yⱼ uses, per sample, the target distribution whose mean Σ widths·Z is the
 //! smaller; the policy maximises min(Q₁, Q₂); the fraction loss reads Z₁ only.
 //!
+//! With the state-prediction auxiliary loss (`state_aux_weight` λ > 0) a linear head
+//! regresses the batch's privileged state targets s from the quantile net's o_t
+//! features: ℓ_s = (1/B) Σ_b ‖ŝ_b − s_b‖² (unweighted by η: it is not an RL loss),
+//! and the critic's gradient is taken of ℓ_Z + λ·ℓ_s, so the encoder it trains
+//! learns to carry the state; the head steps with its own optimiser.
+//!
 //! Invariant: every loss is computed with the pre-update weights and all gradients
 //! are taken before any optimiser steps; if any loss or gradient is non-finite the
 //! whole update is skipped (counted and logged) and the weights stay as they were.
 
 use candle_core::{D, DType, Device, Tensor};
 use pednav_nets::heads::{features_of, standard_normal};
-use pednav_nets::{AdamW, AdamWConfig, DsacNets, NetsConfig, Obs, ParamStore, QuantileGrid, StepOutcome};
+use pednav_nets::{
+    AdamW, AdamWConfig, DsacNets, NetsConfig, Obs, ParamStore, QuantileGrid, StepOutcome, TransitionFeatures,
+};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 
-use crate::config::DsacConfig;
 use crate::error::Result;
 use crate::replay::Batch;
+use pednav_config::DsacConfig;
 
 /// Quantile Huber loss per sample (B): (1/N) Σᵢ Σⱼ wⱼ·|τ̂ᵢ − 1{δᵢⱼ < 0}|·H_κ(δᵢⱼ)/κ
 /// with δᵢⱼ = yⱼ − zᵢ; `pred` (B, N), `target` (B, N′), `taus` (B, N), `weights` (B, N′).
@@ -93,6 +101,8 @@ pub struct UpdateStats {
     pub entropy: f64,
     /// Mean Q(s, a) of the batch (Σ widths·Z; with twin critics the smaller of the two per sample).
     pub q_mean: f64,
+    /// State-prediction loss ℓ_s (0 when the auxiliary loss is off).
+    pub state_loss: f64,
     /// Gradient norm of the quantile net (before clipping).
     pub critic_grad_norm: f64,
     /// Gradient norm of the policy (before clipping).
@@ -114,6 +124,8 @@ pub struct Dsac {
     pub(crate) opt_quantile: AdamW,
     /// The twin critic's optimiser (twin critics only).
     pub(crate) opt_quantile2: Option<AdamW>,
+    /// The state head's optimiser (state-prediction auxiliary loss only).
+    pub(crate) opt_state_head: Option<AdamW>,
     pub(crate) opt_alpha: AdamW,
     /// Noise for policy samples (seeded; saved in checkpoints).
     pub rng: ChaCha8Rng,
@@ -131,6 +143,9 @@ impl Dsac {
         if cfg.twin_critics {
             nets = nets.with_twin_critic(seed)?;
         }
+        if cfg.state_aux_weight > 0.0 {
+            nets = nets.with_state_head(nets_cfg.state_dim, seed)?;
+        }
         let mut log_alpha = ParamStore::new(crate::checkpoint::LOG_ALPHA, device);
         log_alpha.insert(crate::checkpoint::LOG_ALPHA, Tensor::new(&[cfg.initial_alpha.ln() as f32], device)?)?;
         let opt = |store: &ParamStore, lr: f64| {
@@ -143,6 +158,7 @@ impl Dsac {
             opt_fraction: opt(&nets.fraction.store, cfg.lr_fraction)?,
             opt_quantile: opt(&nets.quantile.store, cfg.lr_quantile)?,
             opt_quantile2: nets.twin.as_ref().map(|t| opt(&t.quantile.store, cfg.lr_quantile)).transpose()?,
+            opt_state_head: nets.state_head.as_ref().map(|h| opt(&h.store, cfg.lr_quantile)).transpose()?,
             opt_alpha: AdamW::new(&log_alpha, AdamWConfig::with_lr(cfg.lr_alpha))?,
             cfg: cfg.clone(),
             nets,
@@ -159,7 +175,8 @@ impl Dsac {
         Ok((v as f64).exp())
     }
 
-    /// The optimisers by name, in checkpoint order (`quantile2` with twin critics only).
+    /// The optimisers by name, in checkpoint order (`quantile2` with twin critics only,
+    /// `state_head` with the auxiliary loss only).
     pub(crate) fn optimizers(&mut self) -> Vec<(&'static str, &mut AdamW)> {
         let mut opts = vec![
             ("policy", &mut self.opt_policy),
@@ -169,6 +186,9 @@ impl Dsac {
         ];
         if let Some(opt) = &mut self.opt_quantile2 {
             opts.push(("quantile2", opt));
+        }
+        if let Some(opt) = &mut self.opt_state_head {
+            opts.push(("state_head", opt));
         }
         opts
     }
@@ -198,9 +218,13 @@ impl Dsac {
 
         // Encoders: o_t (with gradients) and o_{t+1} (for the TD target) in one pass
         // over each transition's frames where the encoder allows it.
-        let (obs, next_obs) = (nets.prepare(&batch.obs)?, nets.prepare(&batch.next_obs)?);
-        let features = nets.transition_features(&obs, &next_obs, batch.window.as_ref())?;
-        let (next_policy_features, next_fraction_features) = (features.next_policy, features.next_fraction);
+        let TransitionFeatures {
+            online: feats,
+            next_policy: next_policy_features,
+            next_fraction: next_fraction_features,
+            obs,
+            next_obs,
+        } = nets.transition_features(&batch.transitions)?;
 
         // TD target (no gradients).
         let next_policy = nets.policy.head(&next_policy_features.detach())?;
@@ -223,7 +247,6 @@ impl Dsac {
             .detach();
 
         // Critic.
-        let feats = features.online;
         let fr = nets.fraction.fractions(&feats.fraction, &batch.action)?;
         let hats = fr.hats.detach();
         let grid = nets.quantile.grid(&feats.quantile, &batch.action)?;
@@ -250,6 +273,27 @@ impl Dsac {
             q_batch = q_batch.minimum(&(&z2.detach() * fr.widths.detach())?.sum(D::Minus1)?)?;
         }
         let q_mean = q_batch.mean_all()?.to_scalar::<f32>()? as f64;
+
+        // State prediction (auxiliary): through the quantile net's encoder.
+        let state_loss = match (&nets.state_head, &batch.state_target) {
+            (Some(head), Some(s)) => {
+                let (want, got) = (head.layer.fan_out(), s.dims().last().copied().unwrap_or(0));
+                if want != got {
+                    return Err(crate::error::LearnerError::Replay(format!(
+                        "state targets of {got} values for a state head of {want} (`nets.state_dim`)"
+                    )));
+                }
+                Some(head.predict(&feats.quantile)?.sub(s)?.sqr()?.sum(D::Minus1)?.mean_all()?)
+            }
+            (Some(_), None) => {
+                return Err(crate::error::LearnerError::Replay(
+                    "the state-prediction loss is on but the batch has no state targets \
+                     (the replay was not built with_state_targets)"
+                        .into(),
+                ));
+            }
+            (None, _) => None,
+        };
 
         // Fraction proposal (quantile values detached; gradient through τ only).
         let n = fr.taus.dims()[1] - 1;
@@ -289,14 +333,21 @@ impl Dsac {
             alpha,
             entropy,
             q_mean,
+            state_loss: state_loss.as_ref().map(scalar).transpose()?.unwrap_or(0.0),
             ..Default::default()
         };
         let losses_finite =
-            [stats.critic_loss, stats.policy_loss, stats.fraction_loss, stats.alpha_loss].iter().all(|v| v.is_finite());
+            [stats.critic_loss, stats.policy_loss, stats.fraction_loss, stats.alpha_loss, stats.state_loss]
+                .iter()
+                .all(|v| v.is_finite());
         if !losses_finite {
             return Ok(self.skip(stats, "non-finite loss"));
         }
-        let g_critic = critic_loss.backward()?;
+        let critic_objective = match &state_loss {
+            Some(l) => (critic_loss + (l * c.state_aux_weight)?)?,
+            None => critic_loss,
+        };
+        let g_critic = critic_objective.backward()?;
         let g_fraction = fraction_loss.backward()?;
         let g_policy = policy_loss.backward()?;
         let g_alpha = alpha_loss.backward()?;
@@ -308,6 +359,9 @@ impl Dsac {
             (&mut self.opt_alpha, &g_alpha),
         ];
         if let Some(opt) = &mut self.opt_quantile2 {
+            steps.push((opt, &g_critic));
+        }
+        if let Some(opt) = &mut self.opt_state_head {
             steps.push((opt, &g_critic));
         }
         let norms =

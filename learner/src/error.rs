@@ -9,15 +9,8 @@ pub enum LearnerError {
     #[error(transparent)]
     Net(#[from] pednav_nets::NetError),
     /// A learner setting is out of range.
-    #[error("invalid learner setting `{field}` = {value}: {message}")]
-    Config {
-        /// The offending field.
-        field: &'static str,
-        /// Its value, as text.
-        value: String,
-        /// What is allowed.
-        message: String,
-    },
+    #[error(transparent)]
+    Config(#[from] pednav_config::ConfigError),
     /// The replay cannot serve the request.
     #[error("replay: {0}")]
     Replay(String),
@@ -41,5 +34,5 @@ impl From<candle_core::Error> for LearnerError {
 pub type Result<T, E = LearnerError> = std::result::Result<T, E>;
 
 pub(crate) fn config_error(field: &'static str, value: impl ToString, message: impl Into<String>) -> LearnerError {
-    LearnerError::Config { field, value: value.to_string(), message: message.into() }
+    LearnerError::Config(pednav_config::ConfigError::learner(field, value, message))
 }

@@ -3,7 +3,6 @@
 //! one update on two devices.
 
 pub mod checkpoint;
-pub mod config;
 pub mod device_check;
 pub mod dsac;
 pub mod error;
@@ -11,12 +10,12 @@ pub mod rate;
 pub mod replay;
 
 pub use checkpoint::{
-    CheckpointMeta, TrainedAgent, acting_files, agent_files, load_acting, load_agent, load_checkpoint, read_meta,
-    save_checkpoint,
+    CheckpointMeta, TrainedAgent, acting_files, agent_files, checkpoint_exists, load_acting, load_agent,
+    load_checkpoint, read_meta, save_checkpoint,
 };
-pub use config::DsacConfig;
 pub use device_check::{DeviceComparison, compare_update, fill_replay};
 pub use dsac::{Dsac, UpdateStats, fraction_gradient, quantile_huber_loss, smaller_mean};
 pub use error::{LearnerError, Result};
+pub use pednav_config::DsacConfig;
 pub use rate::RateLimiter;
 pub use replay::{Batch, DualReplay, Frame, FrameKind, ReplayConfig, Step, dual_split, shift_frames};

@@ -19,6 +19,11 @@
 //! `|B_N|` counts exactly the sampleable-kind steps in the ring (non-first,
 //! non-terminal).
 //!
+//! State targets. A replay built [`DualReplay::with_state_targets`] also keeps each
+//! step's privileged state vector (the simulator's, for the state-prediction
+//! auxiliary loss) beside its frame, and a terminal entry the one of its o_t; a
+//! batch then carries o_t's as `state_target`.
+//!
 //! Memory: the ring holds `nonterminal_capacity` frames (84×84 u8: 7,056 B each,
 //! so 1.5e6 frames ≈ 10.6 GB; 42×42: 2.6 GB) plus 32 B per step of links,
 //! actions and rewards; a terminal entry holds (N_h + 1) frames (120 kB at 84×84,
@@ -27,74 +32,13 @@
 use std::collections::HashMap;
 
 use candle_core::{Device, Tensor};
-use pednav_nets::{ACTION_DIM, Obs};
+use pednav_nets::{ACTION_DIM, Transitions};
 use rand::Rng;
 use rand_chacha::ChaCha8Rng;
-use serde::{Deserialize, Serialize};
+
+pub use pednav_config::{FrameKind, ReplayConfig};
 
 use crate::error::{LearnerError, Result, config_error};
-
-/// Replay settings.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields, default)]
-pub struct ReplayConfig {
-    /// |B_N| capacity: steps in the non-terminal ring (Table IV: 1.5e6).
-    pub nonterminal_capacity: usize,
-    /// |B_T| capacity: terminal transitions kept (Table IV: 1.5e6).
-    pub terminal_capacity: usize,
-}
-
-impl Default for ReplayConfig {
-    fn default() -> Self {
-        ReplayConfig { nonterminal_capacity: 1_500_000, terminal_capacity: 1_500_000 }
-    }
-}
-
-impl ReplayConfig {
-    /// The rules [`DualReplay::new`] applies, for frames of `kind` and observation
-    /// windows of `history` frames (the run config's check calls this too, so a
-    /// config the learner would refuse never starts a run).
-    pub fn validate(&self, kind: FrameKind, history: usize) -> Result<()> {
-        if history == 0 || (matches!(kind, FrameKind::State { .. }) && history != 1) {
-            return Err(config_error("history", history, "must be ≥ 1 (exactly 1 for state observations)"));
-        }
-        if self.nonterminal_capacity < history + 2 {
-            return Err(config_error(
-                "nonterminal_capacity",
-                self.nonterminal_capacity,
-                format!("must hold at least N_h + 2 = {} steps", history + 2),
-            ));
-        }
-        if self.terminal_capacity == 0 {
-            return Err(config_error("terminal_capacity", self.terminal_capacity, "must be positive"));
-        }
-        Ok(())
-    }
-}
-
-/// What one stored observation frame is.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum FrameKind {
-    /// Greyscale `size × size` pixels (u8).
-    Pixels {
-        /// Side length.
-        size: usize,
-    },
-    /// A state vector of `dim` floats (the MLP encoder; history must be 1).
-    State {
-        /// Length.
-        dim: usize,
-    },
-}
-
-impl FrameKind {
-    fn len(&self) -> usize {
-        match *self {
-            FrameKind::Pixels { size } => size * size,
-            FrameKind::State { dim } => dim,
-        }
-    }
-}
 
 /// A frame as handed to the replay.
 #[derive(Debug, Clone, Copy)]
@@ -120,6 +64,9 @@ pub struct Step<'a> {
     pub reward: f32,
     /// The goal was reached here (no bootstrapping from this frame).
     pub terminal: bool,
+    /// The simulator's state vector at this observation (a training target only;
+    /// required by a replay built [`DualReplay::with_state_targets`], else ignored).
+    pub state_target: Option<&'a [f32]>,
 }
 
 const NONE: u64 = u64::MAX;
@@ -182,6 +129,8 @@ struct StepRing {
     action: Vec<[f32; ACTION_DIM]>,
     reward: Vec<f32>,
     terminal: Vec<bool>,
+    /// State targets, `target_dim` per slot (empty when the replay keeps none).
+    targets: Vec<f32>,
     /// Global index of the next step.
     head: u64,
     /// Steps in the ring that are non-terminal transitions (non-first, non-terminal).
@@ -209,20 +158,18 @@ struct Sequence {
 /// A sampled batch.
 #[derive(Debug, Clone)]
 pub struct Batch {
-    /// Observations o_t.
-    pub obs: Obs,
-    /// Next observations o_{t+1}.
-    pub next_obs: Obs,
-    /// Pixel batches: the N_h + 1 frames (B, N_h + 1, H, W) of each transition, o_t's
-    /// then o_{t+1}'s newest (o_t = the first N_h, o_{t+1} = the last N_h), so the
-    /// 3D-TCN can encode both in one pass ([`pednav_nets::Encoder::encode_transition`]).
-    pub window: Option<Tensor>,
+    /// The transitions (o_t, o_{t+1}), each transition's N_h + 1 frames held once:
+    /// `transitions.obs()` and `transitions.next_obs()` are views of them, and the
+    /// 3D-TCN encodes both in one pass ([`pednav_nets::Encoder::encode_transition`]).
+    pub transitions: Transitions,
     /// Actions a_t (B, 3).
     pub action: Tensor,
     /// Rewards r_t (B).
     pub reward: Tensor,
     /// 1 where o_{t+1} is terminal (goal reached), else 0 (B).
     pub done: Tensor,
+    /// o_t's state targets (B, dim), from a replay built [`DualReplay::with_state_targets`].
+    pub state_target: Option<Tensor>,
     /// Normalised IS ratios η (B): terminal samples first, then non-terminal.
     pub weight: Tensor,
     /// N_T: how many of the B samples came from the terminal pool (the first ones).
@@ -261,6 +208,10 @@ pub struct DualReplay {
     term_frames: Frames,
     term_actions: Vec<[f32; ACTION_DIM]>,
     term_rewards: Vec<f32>,
+    /// Terminal pool: o_t's state target per entry (`target_dim` floats).
+    term_targets: Vec<f32>,
+    /// Length of a state target (0: none kept).
+    target_dim: usize,
     term_cap: usize,
     term_len: usize,
     term_next: usize,
@@ -275,7 +226,7 @@ impl DualReplay {
         cfg.validate(kind, history)?;
         Ok(DualReplay {
             kind,
-            frame_len: kind.len(),
+            frame_len: kind.values_per_frame(),
             history,
             ring: StepRing {
                 cap: cfg.nonterminal_capacity,
@@ -284,18 +235,39 @@ impl DualReplay {
                 action: Vec::new(),
                 reward: Vec::new(),
                 terminal: Vec::new(),
+                targets: Vec::new(),
                 head: 0,
                 transitions: 0,
             },
             term_frames: Frames::new(kind),
             term_actions: Vec::new(),
             term_rewards: Vec::new(),
+            term_targets: Vec::new(),
+            target_dim: 0,
             term_cap: cfg.terminal_capacity,
             term_len: 0,
             term_next: 0,
             streams: HashMap::new(),
             device: device.clone(),
         })
+    }
+
+    /// Keep a state target of `dim` floats with every step (for the state-prediction
+    /// auxiliary loss); batches then carry `state_target`. Call before the first push.
+    pub fn with_state_targets(mut self, dim: usize) -> Result<DualReplay> {
+        if self.ring.head != 0 {
+            return Err(LearnerError::Replay("state targets must be enabled before the first step is stored".into()));
+        }
+        if dim == 0 {
+            return Err(config_error("state_dim", dim, "a state target needs at least one value"));
+        }
+        self.target_dim = dim;
+        Ok(self)
+    }
+
+    /// Length of the state target kept with every step (0: none, the default).
+    pub fn state_target_dim(&self) -> usize {
+        self.target_dim
     }
 
     /// |B_T|: terminal transitions stored.
@@ -325,9 +297,22 @@ impl DualReplay {
                 _ => return Ok(false),
             }
         };
+        let target = match (self.target_dim, step.state_target) {
+            (0, _) => None,
+            (d, Some(t)) if t.len() == d => Some(t),
+            (d, t) => {
+                return Err(LearnerError::Replay(format!(
+                    "this replay keeps state targets of {d} values; the step has {}",
+                    t.map_or("none".to_string(), |t| t.len().to_string())
+                )));
+            }
+        };
         let g = self.ring.head;
         let slot = self.ring.slot(g);
         let r = &mut self.ring;
+        if let Some(t) = target {
+            write_slot(&mut r.targets, slot, t);
+        }
         let fresh = r.prev.len() == slot;
         if !fresh && r.is_transition(slot) {
             r.transitions -= 1;
@@ -418,6 +403,13 @@ impl DualReplay {
             self.ring.frames.copy_to(src, self.frame_len, &mut self.term_frames, e * (n + 1) + i);
         }
         let (acts, rews) = self.history_of(&seq);
+        if self.target_dim > 0 {
+            let obs_step = seq.steps[n - 1].unwrap_or(pad);
+            let d = self.target_dim;
+            let src = self.ring.slot(obs_step) * d;
+            let target = self.ring.targets[src..src + d].to_vec();
+            write_slot(&mut self.term_targets, e, &target);
+        }
         write_slot(&mut self.term_actions, e, &acts);
         write_slot(&mut self.term_rewards, e, &rews);
         self.term_next = (e + 1) % self.term_cap;
@@ -462,6 +454,7 @@ impl DualReplay {
         let n = self.history;
         let fl = self.frame_len;
         let mut b = BatchBuilder::new(batch, n, fl);
+        let d = self.target_dim;
         for _ in 0..n_t {
             let e = rng.random_range(0..self.term_len);
             let mut frames = Vec::with_capacity((n + 1) * fl);
@@ -469,6 +462,7 @@ impl DualReplay {
                 self.term_frames.read(e * (n + 1) + i, fl, &mut frames);
             }
             self.augment(&mut frames, max_shift, rng);
+            b.targets.extend_from_slice(self.term_targets.get(e * d..(e + 1) * d).unwrap_or_default());
             b.add(
                 &frames,
                 &self.term_actions[e * n..(e + 1) * n],
@@ -486,9 +480,13 @@ impl DualReplay {
             }
             let (acts, rews) = self.history_of(&seq);
             self.augment(&mut frames, max_shift, rng);
+            if d > 0 {
+                let src = self.ring.slot(seq.steps[n - 1].unwrap_or(pad)) * d;
+                b.targets.extend_from_slice(&self.ring.targets[src..src + d]);
+            }
             b.add(&frames, &acts, &rews, 0.0, eta_n as f32);
         }
-        b.finish(self.kind, n_t, &self.device)
+        b.finish(self.kind, n_t, d, &self.device)
     }
 }
 
@@ -525,17 +523,17 @@ struct BatchBuilder {
     n: usize,
     fl: usize,
     b: usize,
-    obs_frames: Vec<f32>,
-    next_frames: Vec<f32>,
-    window_frames: Vec<f32>,
-    obs_actions: Vec<f32>,
-    next_actions: Vec<f32>,
-    obs_rewards: Vec<f32>,
-    next_rewards: Vec<f32>,
+    /// Each transition's N_h + 1 frames.
+    frames: Vec<f32>,
+    /// Each transition's N_h actions and rewards (the newest are a_t, r_t).
+    actions: Vec<f32>,
+    rewards: Vec<f32>,
     action: Vec<f32>,
     reward: Vec<f32>,
     done: Vec<f32>,
     weight: Vec<f32>,
+    /// o_t's state targets, concatenated (empty without state targets).
+    targets: Vec<f32>,
 }
 
 impl BatchBuilder {
@@ -544,60 +542,57 @@ impl BatchBuilder {
             n,
             fl,
             b,
-            obs_frames: Vec::with_capacity(b * n * fl),
-            next_frames: Vec::with_capacity(b * n * fl),
-            window_frames: Vec::with_capacity(b * (n + 1) * fl),
-            obs_actions: Vec::with_capacity(b * n * ACTION_DIM),
-            next_actions: Vec::with_capacity(b * n * ACTION_DIM),
-            obs_rewards: Vec::with_capacity(b * n),
-            next_rewards: Vec::with_capacity(b * n),
+            frames: Vec::with_capacity(b * (n + 1) * fl),
+            actions: Vec::with_capacity(b * n * ACTION_DIM),
+            rewards: Vec::with_capacity(b * n),
             action: Vec::with_capacity(b * ACTION_DIM),
             reward: Vec::with_capacity(b),
             done: Vec::with_capacity(b),
             weight: Vec::with_capacity(b),
+            targets: Vec::new(),
         }
     }
 
     /// `frames`: N_h + 1 frames; `acts`/`rews`: the N_h history entries of the sequence.
     fn add(&mut self, frames: &[f32], acts: &[[f32; ACTION_DIM]], rews: &[f32], done: f32, weight: f32) {
-        let (n, fl) = (self.n, self.fl);
-        self.obs_frames.extend_from_slice(&frames[..n * fl]);
-        self.next_frames.extend_from_slice(&frames[fl..]);
-        self.window_frames.extend_from_slice(frames);
-        self.obs_actions.extend(acts[..n - 1].iter().flatten());
-        self.next_actions.extend(acts[1..].iter().flatten());
-        self.obs_rewards.extend_from_slice(&rews[..n - 1]);
-        self.next_rewards.extend_from_slice(&rews[1..]);
+        let n = self.n;
+        debug_assert_eq!(frames.len(), (n + 1) * self.fl);
+        self.frames.extend_from_slice(frames);
+        self.actions.extend(acts.iter().flatten());
+        self.rewards.extend_from_slice(rews);
         self.action.extend_from_slice(&acts[n - 1]);
         self.reward.push(rews[n - 1]);
         self.done.push(done);
         self.weight.push(weight);
     }
 
-    fn finish(self, kind: FrameKind, n_terminal: usize, dev: &Device) -> Result<Batch> {
+    fn finish(self, kind: FrameKind, n_terminal: usize, target_dim: usize, dev: &Device) -> Result<Batch> {
         let (b, n) = (self.b, self.n);
-        let obs = |frames: Vec<f32>, actions: Vec<f32>, rewards: Vec<f32>| -> Result<Obs> {
-            Ok(match kind {
-                FrameKind::Pixels { size } => Obs::Pixels {
-                    frames: Tensor::from_vec(frames, (b, n, size, size), dev)?,
-                    actions: Tensor::from_vec(actions, (b, n - 1, ACTION_DIM), dev)?,
-                    rewards: Tensor::from_vec(rewards, (b, n - 1), dev)?,
-                },
-                FrameKind::State { dim } => Obs::State(Tensor::from_vec(frames, (b, dim), dev)?),
-            })
-        };
-        let window = match kind {
-            FrameKind::Pixels { size } => Some(Tensor::from_vec(self.window_frames, (b, n + 1, size, size), dev)?),
-            FrameKind::State { .. } => None,
+        let transitions = match kind {
+            FrameKind::Pixels { size } => Transitions::Pixels {
+                frames: Tensor::from_vec(self.frames, (b, n + 1, size, size), dev)?,
+                actions: Tensor::from_vec(self.actions, (b, n, ACTION_DIM), dev)?,
+                rewards: Tensor::from_vec(self.rewards, (b, n), dev)?,
+            },
+            FrameKind::State { dim } => {
+                // History 1: each transition is o_t's vector then o_{t+1}'s.
+                let pairs = Tensor::from_vec(self.frames, (b, 2, dim), dev)?;
+                Transitions::State {
+                    obs: pairs.narrow(1, 0, 1)?.reshape((b, dim))?,
+                    next: pairs.narrow(1, 1, 1)?.reshape((b, dim))?,
+                }
+            }
         };
         Ok(Batch {
-            obs: obs(self.obs_frames, self.obs_actions, self.obs_rewards)?,
-            next_obs: obs(self.next_frames, self.next_actions, self.next_rewards)?,
-            window,
+            transitions,
             action: Tensor::from_vec(self.action, (b, ACTION_DIM), dev)?,
             reward: Tensor::from_vec(self.reward, b, dev)?,
             done: Tensor::from_vec(self.done, b, dev)?,
             weight: Tensor::from_vec(self.weight, b, dev)?,
+            state_target: match target_dim {
+                0 => None,
+                d => Some(Tensor::from_vec(self.targets, (b, d), dev)?),
+            },
             n_terminal,
         })
     }

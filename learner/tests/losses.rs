@@ -131,12 +131,16 @@ fn the_twin_critic_trains_a_shared_encoder() {
     assert_eq!(fraction(&single), fraction(&twin));
 }
 
+/// A batch of random 4-float states, with 4-float state targets (s₀ − s₁, 2·s₃, s₂,
+/// 0.5) for the state-prediction loss (sampling them draws nothing from `rng`).
 fn state_batch(b: usize, rng: &mut ChaCha8Rng) -> Batch {
     let cfg = ReplayConfig { nonterminal_capacity: 1000, terminal_capacity: 100 };
-    let mut replay = DualReplay::new(&cfg, FrameKind::State { dim: 4 }, 1, &Device::Cpu).unwrap();
+    let mut replay =
+        DualReplay::new(&cfg, FrameKind::State { dim: 4 }, 1, &Device::Cpu).unwrap().with_state_targets(4).unwrap();
     for ep in 0..20 {
         for t in 0..10 {
             let s: [f32; 4] = std::array::from_fn(|_| rng.random_range(-1.0..1.0));
+            let target = [s[0] - s[1], 2.0 * s[3], s[2], 0.5];
             let a: [f32; 3] = std::array::from_fn(|_| rng.random_range(-1.0..1.0));
             replay
                 .push(&Step {
@@ -146,6 +150,7 @@ fn state_batch(b: usize, rng: &mut ChaCha8Rng) -> Batch {
                     action: a,
                     reward: rng.random_range(-1.0..1.0),
                     terminal: t == 9 && ep % 2 == 0,
+                    state_target: Some(&target),
                 })
                 .unwrap();
         }
@@ -230,6 +235,57 @@ fn a_non_finite_batch_skips_the_update_and_keeps_the_weights() {
     assert_eq!(before, dsac.nets.quantile.store.vars()[0].1.flatten_all().unwrap().to_vec1::<f32>().unwrap());
 }
 
+/// ℓ_s by hand from the head's parameters and the encoder's features: the mean over
+/// the batch of ‖W·f + b − s‖²; the loss trains the critic's encoder (and not the
+/// policy's own one), and on a fixed batch it falls.
+#[test]
+fn state_prediction_loss_by_hand_and_it_shapes_the_critic_encoder() {
+    let mut rng = ChaCha8Rng::seed_from_u64(8);
+    let batch = state_batch(16, &mut rng);
+    let (cfg, nets) = small();
+    let aux_cfg = DsacConfig { state_aux_weight: 0.5, lr_quantile: 1e-3, ..cfg.clone() };
+    let plain_cfg = DsacConfig { lr_quantile: 1e-3, ..cfg.clone() };
+    let mut aux = Dsac::new(&aux_cfg, &nets, &Device::Cpu, 1).unwrap();
+    let mut plain = Dsac::new(&plain_cfg, &nets, &Device::Cpu, 1).unwrap();
+    let head = aux.nets.state_head.as_ref().expect("a state head with state_aux_weight > 0");
+    assert!(plain.nets.state_head.is_none());
+    let obs = aux.nets.prepare(&batch.transitions.obs().unwrap()).unwrap();
+    let f: Vec<Vec<f32>> = aux.nets.online_features(&obs).unwrap().quantile.to_vec2().unwrap();
+    let param = |name: &str| head.store.vars().iter().find(|(n, _)| n == name).unwrap().1.as_tensor().clone();
+    let (w, b): (Vec<Vec<f32>>, Vec<f32>) =
+        (param("linear.w").to_vec2().unwrap(), param("linear.b").to_vec1().unwrap());
+    let s: Vec<Vec<f32>> = batch.state_target.as_ref().unwrap().to_vec2().unwrap();
+    let mut by_hand = 0.0f64;
+    for (fi, si) in f.iter().zip(&s) {
+        for (d, target) in si.iter().enumerate() {
+            let pred: f32 = b[d] + fi.iter().zip(&w).map(|(x, row)| x * row[d]).sum::<f32>();
+            by_hand += ((pred - target) as f64).powi(2);
+        }
+    }
+    by_hand /= f.len() as f64;
+    let first = aux.update(&batch).unwrap();
+    let plain_stats = plain.update(&batch).unwrap();
+    assert!((first.state_loss - by_hand).abs() < 1e-5 * by_hand.max(1.0), "{} vs {by_hand}", first.state_loss);
+    assert_eq!(plain_stats.state_loss, 0.0);
+    // Same seeds: only the critic's encoder (and head) differ after the update.
+    assert_eq!(first.critic_loss, plain_stats.critic_loss, "ℓ_s is reported apart from the critic loss");
+    let store_values = |s: &pednav_nets::ParamStore| -> Vec<Vec<f32>> {
+        s.vars().iter().map(|(_, v)| v.flatten_all().unwrap().to_vec1().unwrap()).collect()
+    };
+    assert_ne!(store_values(&aux.nets.quantile.store), store_values(&plain.nets.quantile.store));
+    assert_eq!(store_values(&aux.nets.policy.store), store_values(&plain.nets.policy.store));
+    let mut last = first.state_loss;
+    for _ in 0..60 {
+        last = aux.update(&batch).unwrap().state_loss;
+    }
+    assert!(last < 0.5 * first.state_loss, "ℓ_s {} → {last}", first.state_loss);
+    // A batch without targets is refused rather than trained without ℓ_s.
+    let mut bare = batch.clone();
+    bare.state_target = None;
+    let err = aux.update(&bare).unwrap_err().to_string();
+    assert!(err.contains("state targets"), "{err}");
+}
+
 fn all_values(d: &Dsac) -> Vec<Vec<f32>> {
     let mut out = Vec::new();
     for store in d.nets.stores().into_iter().chain([&d.log_alpha]) {
@@ -306,6 +362,25 @@ fn checkpoints_round_trip_bit_exactly_and_bad_ones_change_nothing() {
     assert!(err.contains("has a twin critic") && err.contains("twin_critics"), "{err}");
     let err = load_checkpoint(&ck, &mut f).unwrap_err().to_string();
     assert!(err.contains("has no twin critic"), "{err}");
+
+    // The state-prediction head and its moments round-trip; a learner configured the
+    // other way is refused naming the setting.
+    let aux_cfg = DsacConfig { state_aux_weight: 1.0, ..cfg.clone() };
+    let mut h = Dsac::new(&aux_cfg, &nets, &Device::Cpu, 4).unwrap();
+    h.update(&state_batch(16, &mut rng)).unwrap();
+    let aux_ck = dir.join("aux");
+    save_checkpoint(&aux_ck, &mut h, None, serde_json::Value::Null).unwrap();
+    assert!(aux_ck.join("state_head.safetensors").exists());
+    let mut i = Dsac::new(&aux_cfg, &nets, &Device::Cpu, 5).unwrap();
+    load_checkpoint(&aux_ck, &mut i).unwrap();
+    assert_eq!(all_values(&h), all_values(&i));
+    let batch = state_batch(16, &mut rng);
+    assert_eq!(h.update(&batch).unwrap(), i.update(&batch).unwrap());
+    let mut j = Dsac::new(&cfg, &nets, &Device::Cpu, 6).unwrap();
+    let err = load_checkpoint(&aux_ck, &mut j).unwrap_err().to_string();
+    assert!(err.contains("state-prediction head") && err.contains("state_aux_weight"), "{err}");
+    let err = load_checkpoint(&ck, &mut i).unwrap_err().to_string();
+    assert!(err.contains("has no state-prediction head"), "{err}");
 
     // What a results folder keeps: state.json and the acting networks' files load the
     // policy into fresh networks; a damaged copy is refused and changes nothing.

@@ -136,6 +136,7 @@ fn dsac_learns_pendulum_swing_up() {
                 action: [0.0; 3],
                 reward: 0.0,
                 terminal: false,
+                state_target: None,
             })
             .unwrap();
         let mut ret = 0.0;
@@ -157,6 +158,7 @@ fn dsac_learns_pendulum_swing_up() {
                     action,
                     reward: r as f32,
                     terminal: false,
+                    state_target: None,
                 })
                 .unwrap();
             limiter.inserted(1);

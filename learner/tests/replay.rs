@@ -6,7 +6,7 @@ use std::collections::HashMap;
 
 use candle_core::Device;
 use pednav_learner::{DualReplay, Frame, FrameKind, ReplayConfig, Step, dual_split, shift_frames};
-use pednav_nets::Obs;
+use pednav_nets::{Obs, Transitions};
 use proptest::prelude::*;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -140,6 +140,7 @@ proptest! {
                 action: if t == 0 { [9.0; 3] } else { action(s, ep, t - 1) },
                 reward: if t == 0 { 9.0 } else { reward(s, ep, t - 1) },
                 terminal,
+                state_target: None,
             };
             // A step whose predecessor was overwritten (its stream idled while others
             // filled the ring) is dropped, as is the rest of that episode.
@@ -154,19 +155,10 @@ proptest! {
                 let act: Vec<Vec<f32>> = batch.action.to_vec2().unwrap();
                 let rew: Vec<f32> = batch.reward.to_vec1().unwrap();
                 let done: Vec<f32> = batch.done.to_vec1().unwrap();
-                // The transition window is o_t's frames then o_{t+1}'s newest.
-                let (Obs::Pixels { frames: f0, .. }, Obs::Pixels { frames: f1, .. }) = (&batch.obs, &batch.next_obs) else {
-                    panic!("pixel observations expected")
-                };
-                let window = batch.window.as_ref().expect("pixel batches carry the transition window");
-                let joined = candle_core::Tensor::cat(&[f0, &f1.narrow(1, history - 1, 1).unwrap()], 1).unwrap();
-                prop_assert_eq!(window.flatten_all().unwrap().to_vec1::<f32>().unwrap(), joined.flatten_all().unwrap().to_vec1::<f32>().unwrap());
-                prop_assert_eq!(
-                    window.narrow(1, 1, history).unwrap().flatten_all().unwrap().to_vec1::<f32>().unwrap(),
-                    f1.flatten_all().unwrap().to_vec1::<f32>().unwrap()
-                );
+                // o_t and o_{t+1} are views of the transitions' stored frames.
+                let (obs, next) = (batch.transitions.obs().unwrap(), batch.transitions.next_obs().unwrap());
                 for i in 0..8 {
-                    check_sample(&batch.obs, &batch.next_obs, i, history, done[i], &act[i], rew[i], &terminal_at);
+                    check_sample(&obs, &next, i, history, done[i], &act[i], rew[i], &terminal_at);
                     prop_assert_eq!(done[i] == 1.0, i < batch.n_terminal);
                     checked += 1;
                 }
@@ -181,8 +173,16 @@ fn counts_follow_inserts_and_evictions() {
     let cfg = ReplayConfig { nonterminal_capacity: 10, terminal_capacity: 2 };
     let mut r = DualReplay::new(&cfg, FrameKind::State { dim: 1 }, 1, &Device::Cpu).unwrap();
     let push = |r: &mut DualReplay, first, terminal| {
-        r.push(&Step { stream: 0, first, frame: Frame::State(&[0.0]), action: [0.0; 3], reward: 0.0, terminal })
-            .unwrap()
+        r.push(&Step {
+            stream: 0,
+            first,
+            frame: Frame::State(&[0.0]),
+            action: [0.0; 3],
+            reward: 0.0,
+            terminal,
+            state_target: None,
+        })
+        .unwrap()
     };
     push(&mut r, true, false);
     assert_eq!((r.nonterminal_len(), r.terminal_len()), (0, 0), "an episode start is not a transition");
@@ -209,8 +209,15 @@ fn counts_follow_inserts_and_evictions() {
 fn a_stream_seen_mid_episode_is_ignored_until_its_next_start() {
     let cfg = ReplayConfig { nonterminal_capacity: 10, terminal_capacity: 2 };
     let mut r = DualReplay::new(&cfg, FrameKind::State { dim: 1 }, 1, &Device::Cpu).unwrap();
-    let step =
-        |first| Step { stream: 7, first, frame: Frame::State(&[1.0]), action: [0.0; 3], reward: 0.0, terminal: false };
+    let step = |first| Step {
+        stream: 7,
+        first,
+        frame: Frame::State(&[1.0]),
+        action: [0.0; 3],
+        reward: 0.0,
+        terminal: false,
+        state_target: None,
+    };
     assert!(!r.push(&step(false)).unwrap());
     assert!(r.push(&step(true)).unwrap());
     assert!(r.push(&step(false)).unwrap());
@@ -241,16 +248,27 @@ fn sampled_windows_are_shifted_as_a_whole() {
     let mut r = DualReplay::new(&cfg, FrameKind::Pixels { size: 3 }, 1, &Device::Cpu).unwrap();
     let frames: [[u8; 9]; 2] = [std::array::from_fn(|i| 10 * i as u8), std::array::from_fn(|i| 100 + 10 * i as u8)];
     for (t, px) in frames.iter().enumerate() {
-        let step =
-            Step { stream: 0, first: t == 0, frame: Frame::Pixels(px), action: [0.0; 3], reward: 0.0, terminal: false };
+        let step = Step {
+            stream: 0,
+            first: t == 0,
+            frame: Frame::Pixels(px),
+            action: [0.0; 3],
+            reward: 0.0,
+            terminal: false,
+            state_target: None,
+        };
         r.push(&step).unwrap();
     }
     let plain = r.sample(64, &mut ChaCha8Rng::seed_from_u64(3)).unwrap();
-    let window =
-        |b: &pednav_learner::Batch| b.window.as_ref().unwrap().flatten_from(2).unwrap().to_vec3::<f32>().unwrap();
+    let window = |b: &pednav_learner::Batch| match &b.transitions {
+        Transitions::Pixels { frames, .. } => frames.flatten_from(2).unwrap().to_vec3::<f32>().unwrap(),
+        Transitions::State { .. } => panic!("pixel batch"),
+    };
     let stored: Vec<f32> = window(&plain)[0].concat();
     let shifted = r.sample_shifted(64, 1, &mut ChaCha8Rng::seed_from_u64(3)).unwrap();
-    let (Obs::Pixels { frames: obs, .. }, Obs::Pixels { frames: next, .. }) = (&shifted.obs, &shifted.next_obs) else {
+    let (Obs::Pixels { frames: obs, .. }, Obs::Pixels { frames: next, .. }) =
+        (shifted.transitions.obs().unwrap(), shifted.transitions.next_obs().unwrap())
+    else {
         panic!("pixel batch")
     };
     let (obs, next) = (
@@ -268,4 +286,59 @@ fn sampled_windows_are_shifted_as_a_whole() {
         assert_eq!((&obs[i][..], &next[i][..]), (&w[..9], &w[9..]), "sample {i}: o_t, o_t+1 are the window's views");
     }
     assert!(offsets.len() >= 5, "64 draws from 9 offsets gave only {offsets:?}");
+}
+
+/// With state targets every sample carries its o_t's target — the target pushed with
+/// o_t's newest frame — from both pools, across episode starts and ring wrap-around;
+/// a step without one is refused, and targets cannot be switched on mid-run.
+#[test]
+fn state_targets_follow_the_observation_they_were_pushed_with() {
+    let cfg = ReplayConfig { nonterminal_capacity: 12, terminal_capacity: 3 };
+    let history = 3;
+    let mut r = DualReplay::new(&cfg, FrameKind::Pixels { size: 2 }, history, &Device::Cpu)
+        .unwrap()
+        .with_state_targets(2)
+        .unwrap();
+    // Step k of the stream: every pixel k, target (10k, 10k + 1); episodes of 5 steps,
+    // every other one reaching the goal.
+    for k in 0..40u8 {
+        let (t, ep) = (k % 5, k / 5);
+        let frame = [k; 4];
+        let target = [10.0 * k as f32, 10.0 * k as f32 + 1.0];
+        let step = Step {
+            stream: 0,
+            first: t == 0,
+            frame: Frame::Pixels(&frame),
+            action: [0.0; 3],
+            reward: 0.0,
+            terminal: t == 4 && ep % 2 == 0,
+            state_target: Some(&target),
+        };
+        assert!(r.push(&step).unwrap());
+    }
+    assert!(r.terminal_len() > 0);
+    let batch = r.sample(64, &mut ChaCha8Rng::seed_from_u64(1)).unwrap();
+    assert!(batch.n_terminal >= 1);
+    let Obs::Pixels { frames, .. } = batch.transitions.obs().unwrap() else { panic!("pixel batch") };
+    let newest = frames.narrow(1, history - 1, 1).unwrap().flatten_from(1).unwrap().to_vec2::<f32>().unwrap();
+    let targets = batch.state_target.as_ref().expect("a replay with targets fills them").to_vec2::<f32>().unwrap();
+    for (pixels, target) in newest.iter().zip(&targets) {
+        let k = (pixels[0] * 255.0).round();
+        assert_eq!(target, &vec![10.0 * k, 10.0 * k + 1.0], "o_t's newest frame is step {k}");
+    }
+    // A step without its target is refused; so is switching targets on after a push.
+    let frame = [0u8; 4];
+    let bare = Step {
+        stream: 1,
+        first: true,
+        frame: Frame::Pixels(&frame),
+        action: [0.0; 3],
+        reward: 0.0,
+        terminal: false,
+        state_target: None,
+    };
+    assert!(r.push(&bare).unwrap_err().to_string().contains("state targets of 2 values"));
+    let mut plain = DualReplay::new(&cfg, FrameKind::Pixels { size: 2 }, history, &Device::Cpu).unwrap();
+    plain.push(&bare).unwrap();
+    assert!(plain.with_state_targets(2).is_err());
 }

@@ -66,10 +66,10 @@ fn a_tiny_run_can_be_evaluated_and_plotted() {
     std::fs::write(&config, format!("{smoke}max_updates = 30\n")).unwrap();
     let run = root.join("run");
     let bins = [
-        ("pednav-runtime", "shared/runtime", "pednav-run"),
+        ("pednav-launcher", "deploy/launcher", "pednav-run"),
         ("pednav-actor", "actor", "pednav-actor"),
-        ("pednav-learner-process", "learner/process", "pednav-learner"),
-        ("pednav-curriculum-service", "curriculum-service/process", "pednav-curriculum"),
+        ("pednav-learner", "learner", "pednav-learner"),
+        ("pednav-curriculum", "curriculum-service", "pednav-curriculum"),
         ("pednav-experiments", "shared/experiments", "pednav-plot"),
     ];
     let paths: Vec<_> = bins.iter().map(|(p, d, b)| binary(p, d, b)).collect();

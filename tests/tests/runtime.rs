@@ -21,10 +21,10 @@ const WATCHDOG: Duration = Duration::from_secs(600);
 
 fn bin_dir() -> PathBuf {
     let bins = [
-        ("pednav-runtime", "shared/runtime", "pednav-run"),
+        ("pednav-launcher", "deploy/launcher", "pednav-run"),
         ("pednav-actor", "actor", "pednav-actor"),
-        ("pednav-learner-process", "learner/process", "pednav-learner"),
-        ("pednav-curriculum-service", "curriculum-service/process", "pednav-curriculum"),
+        ("pednav-learner", "learner", "pednav-learner"),
+        ("pednav-curriculum", "curriculum-service", "pednav-curriculum"),
     ];
     let paths: Vec<PathBuf> = bins.iter().map(|(p, d, b)| binary(p, d, b)).collect();
     paths[0].parent().unwrap().to_path_buf()

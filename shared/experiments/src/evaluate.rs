@@ -19,7 +19,7 @@ use pednav_nets::{DsacNets, NetsConfig, Obs, PolicyStream};
 use pednav_runtime::RunConfig;
 use pednav_sim::draw::{draw_map, enlarge_gray, save_gif, side_by_side};
 use pednav_sim::oracle::{Oracle, OracleConfig};
-use pednav_sim::{Action, BackendChoice, ObsMode, Pose, SimConfig, SimWorld, VecEnv};
+use pednav_sim::{Action, BackendChoice, DiscountedReturn, ObsMode, Pose, SimConfig, SimWorld, VecEnv};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
@@ -98,8 +98,7 @@ pub struct Evaluator {
 struct Running {
     task: EvalTask,
     filler: bool,
-    ret: f32,
-    discount: f32,
+    ret: DiscountedReturn,
     steps: u32,
     trajectory: Vec<[f32; 2]>,
 }
@@ -112,7 +111,7 @@ struct Running {
 pub fn load_policy(run_dir: &Path, checkpoint: Option<&Path>, device: &Device) -> Result<(RunConfig, DsacNets)> {
     let cfg = RunConfig::load(&run_dir.join("config.toml"))
         .map_err(|e| ExperimentError::file(&run_dir.join("config.toml"), e))?;
-    let ckpt = checkpoint.map_or_else(|| run_dir.join("checkpoints").join("learner"), Path::to_path_buf);
+    let ckpt = checkpoint.map_or_else(|| pednav_runtime::RunDir::new(run_dir).learner_checkpoint(), Path::to_path_buf);
     let nets = DsacNets::new(&cfg.nets, device, cfg.seed).map_err(|e| ExperimentError::file(&ckpt, e))?;
     load_acting(&ckpt, &nets).map_err(|e| ExperimentError::file(&ckpt, e))?;
     Ok((cfg, nets))
@@ -172,8 +171,13 @@ impl Evaluator {
             noise[e] = ChaCha8Rng::seed_from_u64(task.seed);
             noise[e].set_stream(POLICY_NOISE_STREAM);
         }
-        running[e] =
-            Some(Running { task, filler, ret: 0.0, discount: 1.0, steps: 0, trajectory: vec![[pose.x, pose.y]] });
+        running[e] = Some(Running {
+            task,
+            filler,
+            ret: DiscountedReturn::new(self.gamma as f64),
+            steps: 0,
+            trajectory: vec![[pose.x, pose.y]],
+        });
         Ok(())
     }
 
@@ -282,8 +286,7 @@ impl Evaluator {
             started.clear();
             for (e, t) in transitions.iter().enumerate() {
                 let r = running[e].as_mut().expect("every env runs an episode");
-                r.ret += r.discount * t.reward;
-                r.discount *= self.gamma;
+                r.ret.add(t.reward);
                 r.steps += 1;
                 r.trajectory.push([t.pose.x, t.pose.y]);
                 if let Some(o) = observer.as_deref_mut() {
@@ -296,7 +299,7 @@ impl Evaluator {
                             point: done.task.point,
                             yaw_deg: done.task.yaw_deg,
                             run: done.task.run,
-                            discounted_return: done.ret,
+                            discounted_return: done.ret.value() as f32,
                             success: t.terminated,
                             steps: done.steps,
                             trajectory: done.trajectory,
@@ -343,8 +346,7 @@ impl Evaluator {
             let a = self.actions(None)?;
             let t = self.envs.step(&a)?[0];
             let r = running[0].as_mut().expect("running");
-            r.ret += r.discount * t.reward;
-            r.discount *= self.gamma;
+            r.ret.add(t.reward);
             r.steps += 1;
             r.trajectory.push([t.pose.x, t.pose.y]);
             if t.terminated || t.truncated {
@@ -354,7 +356,7 @@ impl Evaluator {
                     point: task.point,
                     yaw_deg: task.yaw_deg,
                     run: task.run,
-                    discounted_return: done.ret,
+                    discounted_return: done.ret.value() as f32,
                     success: t.terminated,
                     steps: done.steps,
                     trajectory: done.trajectory,

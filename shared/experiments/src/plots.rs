@@ -219,7 +219,7 @@ fn draw_chart(area: &DrawingArea<BitMapBackend<'_>, Shift>, panel: &Panel, hline
 /// A run's `metrics/learner.csv`: its column names and rows (a value that is absent
 /// or not a number reads as NaN); an error when the file is missing or has no rows.
 pub fn learner_log(run: &Path) -> Result<(Vec<String>, Vec<Vec<f64>>)> {
-    let path = run.join("metrics").join("learner.csv");
+    let path = pednav_runtime::RunDir::new(run).metrics_csv("learner");
     let text = std::fs::read_to_string(&path).map_err(|e| {
         ExperimentError::file(&path, format!("no learner log (the learner writes it during a run): {e}"))
     })?;

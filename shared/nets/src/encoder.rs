@@ -62,6 +62,65 @@ impl Obs {
     }
 }
 
+/// A batch of transitions (o_t, o_{t+1}) with each transition's observations held
+/// once: o_t and o_{t+1} are views ([`Transitions::obs`], [`Transitions::next_obs`]),
+/// so they cannot disagree, and the 3D-TCN encodes both in one pass over the frames
+/// ([`Encoder::encode_transition`]).
+#[derive(Debug, Clone)]
+pub enum Transitions {
+    /// Pixel transitions.
+    Pixels {
+        /// (B, N_h + 1, H, W) in [0, 1]: o_t is the first N_h frames, o_{t+1} the last N_h.
+        frames: Tensor,
+        /// (B, N_h, 3): the actions between the frames; o_t's history is the first
+        /// N_h − 1, o_{t+1}'s the last N_h − 1 (the newest is a_t).
+        actions: Tensor,
+        /// (B, N_h): the rewards between the frames, split like `actions`.
+        rewards: Tensor,
+    },
+    /// State-vector transitions.
+    State {
+        /// o_t (B, S).
+        obs: Tensor,
+        /// o_{t+1} (B, S).
+        next: Tensor,
+    },
+}
+
+impl Transitions {
+    /// Batch size.
+    pub fn batch(&self) -> usize {
+        match self {
+            Transitions::Pixels { frames, .. } => frames.dims()[0],
+            Transitions::State { obs, .. } => obs.dims()[0],
+        }
+    }
+
+    /// o_t (a view, or for pixels narrowed views of the stored tensors).
+    pub fn obs(&self) -> Result<Obs> {
+        self.view(0)
+    }
+
+    /// o_{t+1}.
+    pub fn next_obs(&self) -> Result<Obs> {
+        self.view(1)
+    }
+
+    fn view(&self, offset: usize) -> Result<Obs> {
+        Ok(match self {
+            Transitions::Pixels { frames, actions, rewards } => {
+                let n = frames.dims()[1] - 1;
+                Obs::Pixels {
+                    frames: frames.narrow(1, offset, n)?,
+                    actions: actions.narrow(1, offset, n - 1)?,
+                    rewards: rewards.narrow(1, offset, n - 1)?,
+                }
+            }
+            Transitions::State { obs, next } => Obs::State(if offset == 0 { obs.clone() } else { next.clone() }),
+        })
+    }
+}
+
 /// Spatial stages of the image encoders: (kernel, stride, padding, channels).
 pub const SPATIAL_STAGES: [(usize, usize, usize, usize); 3] = [(4, 2, 1, 16), (4, 2, 1, 32), (3, 3, 0, 64)];
 
@@ -253,35 +312,31 @@ impl Encoder {
     /// of twice over N_h frames: with no temporal padding and temporal stride 1 every
     /// layer shortens the sequence by a fixed amount, so the last layer outputs two
     /// steps, o_t's features and o_{t+1}'s, each equal to its own [`Encoder::encode`]
-    /// (the histories are encoded per observation). Other encoders, or no window,
-    /// encode the two observations separately.
-    pub fn encode_transition(&self, obs: &Obs, next: &Obs, window: Option<&Tensor>) -> Result<(Tensor, Tensor)> {
-        match (self, obs, next, window) {
-            (
-                Encoder::Tcn(e),
-                Obs::Pixels { frames, actions, rewards },
-                Obs::Pixels { actions: next_actions, rewards: next_rewards, .. },
-                Some(window),
-            ) => {
-                let (b, t, h, w) = window.dims4()?;
-                let (ob, ot, oh, ow) = frames.dims4()?;
-                if (b, t, h, w) != (ob, ot + 1, oh, ow) {
-                    return Err(candle_core::Error::Msg(format!(
-                        "transition window must be (B, N_h + 1, H, W) = ({ob}, {}, {oh}, {ow}), got {:?}",
-                        ot + 1,
-                        window.dims()
-                    ))
-                    .into());
-                }
-                let steps = e.encode_frames_steps(window)?; // (B, 2, F)
-                let frame_features = |i: usize| -> Result<Tensor> { Ok(steps.narrow(1, i, 1)?.reshape((b, ()))?) };
-                Ok((
-                    Tensor::cat(&[frame_features(0)?, e.encode_history(actions, rewards)?], D::Minus1)?,
-                    Tensor::cat(&[frame_features(1)?, e.encode_history(next_actions, next_rewards)?], D::Minus1)?,
-                ))
-            }
-            _ => Ok((self.encode(obs)?, self.encode(next)?)),
+    /// (the histories are encoded per observation). Other encoders encode the two
+    /// observations separately.
+    pub fn encode_transition(&self, t: &Transitions) -> Result<(Tensor, Tensor)> {
+        match self.encode_window(t)? {
+            Some(pair) => Ok(pair),
+            None => Ok((self.encode(&t.obs()?)?, self.encode(&t.next_obs()?)?)),
         }
+    }
+
+    /// The one-pass encoding of [`Encoder::encode_transition`] where it applies (a
+    /// 3D-TCN on pixel transitions), else `None`.
+    pub(crate) fn encode_window(&self, t: &Transitions) -> Result<Option<(Tensor, Tensor)>> {
+        let (Encoder::Tcn(e), Transitions::Pixels { frames, .. }) = (self, t) else { return Ok(None) };
+        let (Obs::Pixels { actions, rewards, .. }, Obs::Pixels { actions: next_actions, rewards: next_rewards, .. }) =
+            (t.obs()?, t.next_obs()?)
+        else {
+            unreachable!("pixel transitions give pixel observations")
+        };
+        let b = frames.dims()[0];
+        let steps = e.encode_frames_steps(frames)?; // (B, 2, F)
+        let frame_features = |i: usize| -> Result<Tensor> { Ok(steps.narrow(1, i, 1)?.reshape((b, ()))?) };
+        Ok(Some((
+            Tensor::cat(&[frame_features(0)?, e.encode_history(&actions, &rewards)?], D::Minus1)?,
+            Tensor::cat(&[frame_features(1)?, e.encode_history(&next_actions, &next_rewards)?], D::Minus1)?,
+        )))
     }
 
     /// Features (B, out_dim) of a batch of observations.

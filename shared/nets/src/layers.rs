@@ -100,3 +100,44 @@ impl Conv {
         self.c_out
     }
 }
+
+/// So a [`Dense`] composes with candle-nn code (`x.apply(&layer)`, `candle_nn::seq`).
+impl candle_nn::Module for Dense {
+    fn forward(&self, xs: &Tensor) -> candle_core::Result<Tensor> {
+        linear(xs, self.w.as_tensor(), self.b.as_tensor())
+    }
+}
+
+/// So a [`Conv`] composes with candle-nn code; the input is (B, T, H, W, C_in).
+impl candle_nn::Module for Conv {
+    fn forward(&self, xs: &Tensor) -> candle_core::Result<Tensor> {
+        conv(xs, self.w.as_tensor(), self.b.as_tensor(), self.spec)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use candle_core::{Device, Tensor};
+    use rand::SeedableRng;
+    use rand_chacha::ChaCha8Rng;
+
+    use super::Dense;
+    use crate::params::ParamStore;
+
+    /// The `Module` view of a layer is the layer: same output as `forward`, and as
+    /// x·W + b computed by candle's own matmul.
+    #[test]
+    fn dense_as_a_module_is_x_w_plus_b() {
+        let mut store = ParamStore::new("t", &Device::Cpu);
+        let layer = Dense::new(&mut store, "l", 3, 2, &mut ChaCha8Rng::seed_from_u64(1)).unwrap();
+        let x = Tensor::new(&[[1.0f32, -2.0, 0.5], [0.0, 3.0, -1.0]], &Device::Cpu).unwrap();
+        let via_module = x.apply(&layer).unwrap().to_vec2::<f32>().unwrap();
+        let via_forward = layer.forward(&x).unwrap().to_vec2::<f32>().unwrap();
+        let tensors = store.tensors();
+        let expected = x.matmul(&tensors["l.w"]).unwrap().broadcast_add(&tensors["l.b"]).unwrap();
+        assert_eq!(via_module, via_forward);
+        for (a, b) in via_module.iter().flatten().zip(expected.to_vec2::<f32>().unwrap().iter().flatten()) {
+            assert!((a - b).abs() < 1e-6, "{a} vs {b}");
+        }
+    }
+}

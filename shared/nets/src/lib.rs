@@ -20,10 +20,10 @@ pub mod stream;
 
 pub use config::{ACTION_DIM, EncoderKind, NetsConfig};
 pub use device::{CUDA_BUILT, DeviceSpec};
-pub use encoder::{Encoder, Obs, temporal_plan};
+pub use encoder::{Encoder, Obs, Transitions, temporal_plan};
 pub use error::{NetError, Result};
 pub use heads::{CholeskyGaussian, FractionNet, Fractions, PolicyNet, PolicySample, QuantileGrid, QuantileNet};
-pub use nets::{DsacNets, OnlineFeatures, TransitionFeatures, TwinCritic};
+pub use nets::{DsacNets, OnlineFeatures, StateHead, TransitionFeatures, TwinCritic};
 pub use optim::{AdamW, AdamWConfig, StepOutcome};
 pub use params::ParamStore;
 pub use runtime::init_cpu_runtime;

@@ -9,15 +9,18 @@
 //! An optional second critic ([`TwinCritic`], DSAC's twin critics) has its own
 //! encoder when encoders are not shared and otherwise reads the quantile net's
 //! features (so both critic losses train the shared encoder); its target mirrors it.
+//! An optional [`StateHead`] reads the quantile net's encoder features too (the
+//! state-prediction auxiliary loss trains that encoder) and is never used for acting.
 
 use candle_core::{Device, Tensor};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 
 use crate::config::NetsConfig;
-use crate::encoder::{Encoder, Obs, feature_dim};
+use crate::encoder::{Encoder, Obs, Transitions, feature_dim};
 use crate::error::Result;
 use crate::heads::{FractionNet, PolicyNet, QuantileNet, features_of};
+use crate::layers::Dense;
 use crate::params::ParamStore;
 
 /// Encoder features of one batch for the three online networks.
@@ -34,6 +37,10 @@ pub struct OnlineFeatures {
 /// Encoder features of a batch of transitions (o_t, o_{t+1}) for one DSAC update.
 #[derive(Debug, Clone)]
 pub struct TransitionFeatures {
+    /// o_t as the encoders read it ([`DsacNets::prepare`]), for other encoders of the update.
+    pub obs: Obs,
+    /// o_{t+1} as the encoders read it (the target net's input).
+    pub next_obs: Obs,
     /// o_t's features for the three online heads.
     pub online: OnlineFeatures,
     /// o_{t+1}'s features for the policy head (a′).
@@ -51,6 +58,24 @@ pub struct TwinCritic {
     pub target: QuantileNet,
 }
 
+/// A linear map from the quantile net's encoder features to a privileged target
+/// vector (the simulator's state vector): the head of the state-prediction
+/// auxiliary loss. Training only; acting never reads it.
+#[derive(Clone)]
+pub struct StateHead {
+    /// Its parameters (`state_head.safetensors` in checkpoints).
+    pub store: ParamStore,
+    /// features → target.
+    pub layer: Dense,
+}
+
+impl StateHead {
+    /// Predicted targets (B, dim) from encoder features (B, F).
+    pub fn predict(&self, features: &Tensor) -> Result<Tensor> {
+        self.layer.forward(features)
+    }
+}
+
 /// Policy, fraction-proposal, quantile and target quantile networks.
 #[derive(Clone)]
 pub struct DsacNets {
@@ -66,6 +91,8 @@ pub struct DsacNets {
     pub target: QuantileNet,
     /// The second critic, when twin critics are on ([`DsacNets::with_twin_critic`]).
     pub twin: Option<TwinCritic>,
+    /// The auxiliary state-prediction head ([`DsacNets::with_state_head`]).
+    pub state_head: Option<StateHead>,
 }
 
 impl DsacNets {
@@ -84,7 +111,7 @@ impl DsacNets {
         let quantile = QuantileNet::new("quantile", cfg, true, feature_dim, device, &mut rng(3))?;
         let target = QuantileNet::new("target_quantile", cfg, true, feature_dim, device, &mut rng(3))?;
         target.store.copy_from(&quantile.store)?;
-        Ok(DsacNets { cfg: cfg.clone(), policy, fraction, quantile, target, twin: None })
+        Ok(DsacNets { cfg: cfg.clone(), policy, fraction, quantile, target, twin: None, state_head: None })
     }
 
     /// Add the second critic of twin critics (from its own stream of `seed`, so the
@@ -102,6 +129,17 @@ impl DsacNets {
         let target = QuantileNet::new("target_quantile2", &self.cfg, own, feature_dim, &device, &mut rng())?;
         target.store.copy_from(&quantile.store)?;
         self.twin = Some(TwinCritic { quantile, target });
+        Ok(self)
+    }
+
+    /// Add a [`StateHead`] predicting `dim` targets from the quantile net's encoder
+    /// features (from its own stream of `seed`, so the other networks are unchanged).
+    pub fn with_state_head(mut self, dim: usize, seed: u64) -> Result<DsacNets> {
+        let mut rng = ChaCha8Rng::seed_from_u64(seed);
+        rng.set_stream(5);
+        let mut store = ParamStore::new("state_head", self.quantile.store.device());
+        let layer = Dense::new(&mut store, "linear", feature_dim(&self.cfg), dim, &mut rng)?;
+        self.state_head = Some(StateHead { store, layer });
         Ok(self)
     }
 
@@ -135,19 +173,25 @@ impl DsacNets {
         ))
     }
 
-    /// [`DsacNets::online_features`] of `obs` together with
-    /// [`DsacNets::policy_and_fraction_features`] of `next`, with each 3D-TCN encoder
-    /// that needs both run once over the transition's frame `window` (see
+    /// [`DsacNets::online_features`] of o_t together with
+    /// [`DsacNets::policy_and_fraction_features`] of o_{t+1}, with each 3D-TCN encoder
+    /// that needs both run once over the transitions' frames (see
     /// [`Encoder::encode_transition`]); equal to the two calls (tested).
-    pub fn transition_features(&self, obs: &Obs, next: &Obs, window: Option<&Tensor>) -> Result<TransitionFeatures> {
-        let pair = |e: &Encoder| e.encode_transition(obs, next, window);
+    pub fn transition_features(&self, t: &Transitions) -> Result<TransitionFeatures> {
+        let (obs, next) = (self.prepare(&t.obs()?)?, self.prepare(&t.next_obs()?)?);
+        let pair = |e: &Encoder| -> Result<(Tensor, Tensor)> {
+            match e.encode_window(t)? {
+                Some(pair) => Ok(pair),
+                None => Ok((e.encode(&obs)?, e.encode(&next)?)),
+            }
+        };
         let needs_shared = self.policy.encoder.is_none() || self.fraction.encoder.is_none();
         let quantile_encoder = self.quantile.encoder.as_ref().expect("the quantile net always has an encoder");
         let (quantile, shared_next) = if needs_shared {
             let (q, q_next) = pair(quantile_encoder)?;
             (q, Some(q_next))
         } else {
-            (quantile_encoder.encode(obs)?, None)
+            (quantile_encoder.encode(&obs)?, None)
         };
         let own_or_shared = |e: &Option<Encoder>| -> Result<(Tensor, Tensor)> {
             match (e, &shared_next) {
@@ -158,7 +202,13 @@ impl DsacNets {
         };
         let (policy, next_policy) = own_or_shared(&self.policy.encoder)?;
         let (fraction, next_fraction) = own_or_shared(&self.fraction.encoder)?;
-        Ok(TransitionFeatures { online: OnlineFeatures { policy, fraction, quantile }, next_policy, next_fraction })
+        Ok(TransitionFeatures {
+            online: OnlineFeatures { policy, fraction, quantile },
+            next_policy,
+            next_fraction,
+            obs,
+            next_obs: next,
+        })
     }
 
     /// The batch as the encoders read it best when several of them see it: frame
@@ -181,11 +231,15 @@ impl DsacNets {
         self.policy.encoder.as_ref().or(self.quantile.encoder.as_ref()).expect("the quantile net always has an encoder")
     }
 
-    /// Every parameter store, in checkpoint order (the twin critic's last).
+    /// Every parameter store, in checkpoint order (the twin critic's, then the state
+    /// head's, last).
     pub fn stores(&self) -> Vec<&ParamStore> {
         let mut stores = vec![&self.policy.store, &self.fraction.store, &self.quantile.store, &self.target.store];
         if let Some(twin) = &self.twin {
             stores.extend([&twin.quantile.store, &twin.target.store]);
+        }
+        if let Some(head) = &self.state_head {
+            stores.push(&head.store);
         }
         stores
     }

@@ -8,8 +8,7 @@
 
 use std::path::{Path, PathBuf};
 
-use pednav_curriculum::CurriculumConfig;
-use pednav_learner::{DsacConfig, FrameKind, ReplayConfig};
+use pednav_config::{CurriculumConfig, DsacConfig, FrameKind, ReplayConfig};
 use pednav_nets::{DeviceSpec, EncoderKind, NetsConfig};
 use pednav_sim::{ObsMode, STATE_OBS_DIM, Scene, SimConfig};
 use serde::{Deserialize, Serialize};
@@ -212,6 +211,16 @@ impl RunConfig {
                 }
             }
         }
+        if self.dsac.state_aux_weight > 0.0 && self.nets.state_dim != STATE_OBS_DIM {
+            return bad(
+                "nets.state_dim",
+                self.nets.state_dim.to_string(),
+                &format!(
+                    "dsac.state_aux_weight > 0 predicts the simulator's state vector of {STATE_OBS_DIM} values: \
+                     set nets.state_dim = {STATE_OBS_DIM}"
+                ),
+            );
+        }
         // The replay's own rules (history vs observation kind, capacities), exactly as
         // the learner applies them when it builds the replay.
         self.replay
@@ -275,6 +284,13 @@ impl RunConfig {
         Ok(())
     }
 
+    /// Seed of the curriculum service's randomness (task sampling, the task-value
+    /// net), derived from the run's one `seed` so that it differs from the learner's
+    /// and the actors' streams; the Fig. 4 drawing restores a curriculum with it.
+    pub fn curriculum_seed(&self) -> u64 {
+        self.seed ^ 0x6375_7272_6963_756c
+    }
+
     /// What the learner's replay stores per step: frames of `sim.image_size`² pixels,
     /// or state vectors of `nets.state_dim` values.
     pub fn frame_kind(&self) -> FrameKind {
@@ -288,7 +304,7 @@ impl RunConfig {
     pub fn observation_bytes(&self) -> usize {
         match self.sim.obs_mode {
             ObsMode::Pixels => (self.sim.image_size * self.sim.image_size) as usize,
-            ObsMode::StateDebug => STATE_OBS_DIM * 4,
+            ObsMode::StateDebug => crate::messages::state_payload::bytes(STATE_OBS_DIM),
         }
     }
 }
@@ -363,6 +379,15 @@ mod tests {
         let e = cfg.validate("x").unwrap_err().to_string();
         assert!(e.contains("nets.history") && e.contains("history") && e.contains("8") && e.contains("state"), "{e}");
         let mut cfg = RunConfig::default();
+        cfg.dsac.state_aux_weight = 1.0;
+        cfg.validate("x").unwrap();
+        cfg.nets.state_dim = 5;
+        let e = cfg.validate("x").unwrap_err().to_string();
+        assert!(e.contains("nets.state_dim") && e.contains("state_aux_weight"), "{e}");
+        cfg.dsac.state_aux_weight = -1.0;
+        let e = cfg.validate("x").unwrap_err().to_string();
+        assert!(e.contains("state_aux_weight") && e.contains("-1"), "{e}");
+        let mut cfg = RunConfig::default();
         cfg.dsac.random_shift = 22;
         let e = cfg.validate("x").unwrap_err().to_string();
         assert!(e.contains("dsac.random_shift") && e.contains("21"), "{e}");
@@ -386,7 +411,7 @@ mod tests {
             set(&["dsac.twin_critics=true", "runtime.max_env_steps = 5000", "curriculum.variant=navacl"]).unwrap();
         assert!(cfg.dsac.twin_critics);
         assert_eq!((cfg.runtime.max_env_steps, cfg.dsac.batch_size, cfg.seed), (5000, 32, 4));
-        assert_eq!(cfg.curriculum.variant, pednav_curriculum::Variant::NavAcl);
+        assert_eq!(cfg.curriculum.variant, pednav_config::Variant::NavAcl);
         let e = set(&["dsac.batch_sise=3"]).unwrap_err().to_string();
         assert!(e.contains("batch_sise") && e.contains("base.toml"), "{e}");
         let e = set(&["dsac.warmup=10"]).unwrap_err().to_string();

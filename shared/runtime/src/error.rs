@@ -41,6 +41,9 @@ pub enum RuntimeError {
     /// A message did not match what the receiver expected.
     #[error("bad message: {0}")]
     Message(String),
+    /// Another process did not answer in time.
+    #[error("timed out: {0}")]
+    Timeout(String),
 }
 
 /// Result with [`RuntimeError`].

@@ -1,6 +1,8 @@
 //! # pednav-runtime — what every pednav process shares at run time
 //!
 //! - [`messages`]: the `#[repr(C)]`, zero-copy message types;
+//! - [`channels`]: an actor's typed channel ends (step writer, episode reporter,
+//!   task requester);
 //! - [`ipc`]: the run's iceoryx2 services, opened identically everywhere, under a
 //!   per-run prefix;
 //! - [`config`]: the run configuration and its single validation gate;
@@ -11,6 +13,7 @@
 
 #![warn(missing_docs)]
 
+pub mod channels;
 pub mod config;
 pub mod error;
 pub mod ipc;
@@ -26,33 +29,6 @@ pub use ipc::{Ipc, run_prefix};
 pub use metrics::{Metrics, TbWriter};
 pub use rundir::RunDir;
 pub use signal::StopFlag;
-
-use pednav_curriculum::Category;
-
-/// Wire code of a curriculum category.
-pub fn category_code(c: Category) -> u32 {
-    match c {
-        Category::First => 0,
-        Category::Fixed => 1,
-        Category::Easy => 2,
-        Category::Frontier => 3,
-        Category::Random => 4,
-        Category::Hard => 5,
-    }
-}
-
-/// The category of a wire code.
-pub fn category_of(code: u32) -> Result<Category> {
-    Ok(match code {
-        0 => Category::First,
-        1 => Category::Fixed,
-        2 => Category::Easy,
-        3 => Category::Frontier,
-        4 => Category::Random,
-        5 => Category::Hard,
-        other => return Err(RuntimeError::Message(format!("unknown category code {other}"))),
-    })
-}
 
 /// Set up `tracing` for a process: human-readable lines on stderr (the launcher
 /// sends them to `logs/<process>.log`), level from `RUST_LOG` (default info).

@@ -20,6 +20,46 @@ pub mod step_flags {
     pub const COLLIDED: u32 = 8;
 }
 
+/// The payload of a step record in state mode: the state vector as little-endian
+/// f32 bytes. The actor writes it with [`encode_state`], the learner reads it with
+/// [`decode_state`]; no other code knows the layout.
+pub mod state_payload {
+    use std::mem::MaybeUninit;
+
+    /// Bytes of a payload holding `dim` values.
+    pub fn bytes(dim: usize) -> usize {
+        dim * 4
+    }
+
+    /// Write `state` into `dst` (exactly [`bytes`]`(state.len())` long).
+    pub fn encode_state(state: &[f32], dst: &mut [MaybeUninit<u8>]) {
+        assert_eq!(dst.len(), bytes(state.len()), "a state payload holds exactly its values");
+        for (chunk, v) in dst.chunks_exact_mut(4).zip(state) {
+            for (d, b) in chunk.iter_mut().zip(v.to_le_bytes()) {
+                d.write(b);
+            }
+        }
+    }
+
+    /// The state vector of a payload (its length must be a multiple of 4).
+    pub fn decode_state(payload: &[u8]) -> Vec<f32> {
+        payload.chunks_exact(4).map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]])).collect()
+    }
+
+    #[cfg(test)]
+    mod tests {
+        #[test]
+        fn a_state_round_trips_bit_exactly() {
+            let state = [1.5f32, -0.0, f32::MIN_POSITIVE, 3.0e7];
+            let mut buf = vec![std::mem::MaybeUninit::new(0u8); super::bytes(state.len())];
+            super::encode_state(&state, &mut buf);
+            let bytes: Vec<u8> = buf.iter().map(|b| unsafe { b.assume_init() }).collect();
+            let back = super::decode_state(&bytes);
+            assert_eq!(back.iter().map(|v| v.to_bits()).collect::<Vec<_>>(), state.map(f32::to_bits).to_vec());
+        }
+    }
+}
+
 /// Header of one step record; the payload is the new observation (an
 /// `image_size²` u8 frame, or the f32 state vector as bytes in state mode),
 /// written by the actor straight into the loaned shared-memory sample.
@@ -47,6 +87,12 @@ pub struct StepHeader {
     pub policy_version: u64,
     /// Running sequence number of records sent by this actor incarnation.
     pub seq: u64,
+    /// The simulator's state vector at the new observation
+    /// ([`pednav_sim::state_obs::state_observation`]) when the learner uses it as the
+    /// target of the state-prediction auxiliary loss (`dsac.state_aux_weight` > 0) or
+    /// in state mode, zeros otherwise. Privileged: it never reaches the policy's
+    /// input (in state mode the observation is the payload).
+    pub state: [f32; pednav_sim::STATE_OBS_DIM],
 }
 
 impl StepHeader {
@@ -83,7 +129,7 @@ pub struct EpisodeHeader {
     pub env: u32,
     /// Task id handed out by the curriculum service.
     pub task_id: u64,
-    /// Curriculum category code of the task ([`crate::category_code`]).
+    /// Curriculum category code of the task (`pednav_config::Category::code`).
     pub category: u32,
     /// 1 when the goal was reached.
     pub success: u32,
@@ -131,7 +177,7 @@ pub struct TaskResponse {
     pub y: f32,
     /// Start yaw, radians.
     pub yaw: f32,
-    /// Category code ([`crate::category_code`]).
+    /// Category code (`pednav_config::Category::code`).
     pub category: u32,
     /// Task id, unique within the run.
     pub task_id: u64,
@@ -172,10 +218,14 @@ pub struct Heartbeat {
     pub pid: u32,
     /// Curriculum phase: 0 first task, 1 ACL (curriculum only).
     pub phase: u32,
-    /// Env steps: sent (actor), received (learner), t_c (curriculum).
-    pub steps: u64,
-    /// Episodes finished (actor, curriculum) or updates done (learner).
-    pub count: u64,
+    /// Env steps sent (actor) or received (learner); 0 for the curriculum.
+    pub env_steps: u64,
+    /// t_c: decision steps of the ACL phase (curriculum only).
+    pub acl_steps: u64,
+    /// Episodes finished (actor, curriculum).
+    pub episodes: u64,
+    /// Updates done (learner).
+    pub updates: u64,
     /// Weights version in use (actor) or published (learner).
     pub version: u64,
     /// Mean discounted return of recent episodes.

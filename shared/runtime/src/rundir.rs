@@ -4,11 +4,16 @@
 //! <run>/config.toml                resolved config (what every process reads)
 //! <run>/checkpoints/learner/       DSAC checkpoint (safetensors + state.json)
 //! <run>/checkpoints/curriculum.json curriculum state (gate, t_c, task net, RNG)
+//! <run>/checkpoints/curriculum-snapshots/  curriculum states every 500 episodes (Fig. 4)
 //! <run>/metrics/<process>.csv      metrics rows
 //! <run>/tb/<process>/events.out.tfevents.*   TensorBoard event files
 //! <run>/logs/<process>.log         each process's log (written by the launcher)
 //! <run>/stats/<process>.json       end-of-process counters (steps, checksums)
+//! <run>/launcher.pid               the supervising launcher's pid while it runs
+//! <run>/DONE                       why the run ended, once its budget is spent
 //! ```
+//!
+//! Every process finds these paths through [`RunDir`]; no binary spells them.
 //!
 //! Invariant: a run directory with a `config.toml` is resumed, never overwritten;
 //! starting it with a different config is refused.
@@ -79,6 +84,23 @@ impl RunDir {
     /// The curriculum state file.
     pub fn curriculum_state(&self) -> PathBuf {
         self.checkpoints().join("curriculum.json")
+    }
+    /// Where the curriculum service keeps a copy of its state every 500 episodes.
+    pub fn curriculum_snapshots(&self) -> PathBuf {
+        self.checkpoints().join("curriculum-snapshots")
+    }
+    /// The launcher's lock file (its pid), so a run is supervised once.
+    pub fn launcher_lock(&self) -> PathBuf {
+        self.root.join("launcher.pid")
+    }
+    /// The marker the learner writes when the run's budget is spent (its content says
+    /// which budget); the launcher stops the run on it and clears it on a new start.
+    pub fn done_marker(&self) -> PathBuf {
+        self.root.join("DONE")
+    }
+    /// `metrics/<process>.csv`.
+    pub fn metrics_csv(&self, process: &str) -> PathBuf {
+        self.metrics().join(format!("{process}.csv"))
     }
     /// `logs/`.
     pub fn logs(&self) -> PathBuf {

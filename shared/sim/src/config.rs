@@ -4,6 +4,10 @@ use serde::{Deserialize, Serialize};
 
 use crate::error::{Result, SimError};
 
+/// Highest camera the renderer's mesh is built for: tops of objects taller than this
+/// are never visible and are not drawn; [`SimConfig::validate`] keeps the eye below it.
+pub const MAX_EYE_HEIGHT: f32 = 3.0;
+
 /// What an environment returns as its observation.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize, clap::ValueEnum)]
 #[serde(rename_all = "snake_case")]
@@ -106,7 +110,7 @@ impl SimConfig {
             self.agent_height,
             "must exceed twice the radius",
         )?;
-        let max_eye = crate::render::mesh::MAX_EYE_HEIGHT;
+        let max_eye = MAX_EYE_HEIGHT;
         check(
             self.eye_height > 0.1 && self.eye_height < max_eye,
             "eye_height",

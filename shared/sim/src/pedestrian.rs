@@ -17,7 +17,7 @@
 use serde::{Deserialize, Serialize};
 
 use crate::config::SimConfig;
-use crate::scene::{Pose, RegionKind};
+use crate::scene::{Pose, RegionKind, wrap_angle};
 use crate::world::SimWorld;
 
 /// An action in [−1, 1]³: (speed, yaw rate, head yaw). Values outside are clipped.
@@ -63,16 +63,6 @@ pub fn command_of(action: Action, cfg: &SimConfig) -> Command {
         yaw_rate: a[1] * cfg.max_yaw_rate_deg.to_radians(),
         head_yaw: a[2] * cfg.max_head_yaw_deg.to_radians(),
     }
-}
-
-/// Wrap an angle to (−π, π].
-pub fn wrap_angle(a: f32) -> f32 {
-    let two_pi = std::f32::consts::TAU;
-    let mut r = a.rem_euclid(two_pi);
-    if r > std::f32::consts::PI {
-        r -= two_pi;
-    }
-    r
 }
 
 /// State of one pedestrian episode.

@@ -364,6 +364,16 @@ pub struct PoseSpec {
     pub yaw_deg: f32,
 }
 
+/// Wrap an angle to (−π, π].
+pub fn wrap_angle(a: f32) -> f32 {
+    let two_pi = std::f32::consts::TAU;
+    let mut r = a.rem_euclid(two_pi);
+    if r > std::f32::consts::PI {
+        r -= two_pi;
+    }
+    r
+}
+
 /// An agent pose on the ground plane (yaw in radians).
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct Pose {

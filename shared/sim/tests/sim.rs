@@ -213,7 +213,7 @@ fn oracle_beats_a_hand_scripted_route() {
                 if until(&p.pose) {
                     return true;
                 }
-                let err = pednav_sim::pedestrian::wrap_angle(target_deg.to_radians() - p.pose.yaw);
+                let err = pednav_sim::scene::wrap_angle(target_deg.to_radians() - p.pose.yaw);
                 let a1 = (err / (80f32.to_radians() * 0.25)).clamp(-1.0, 1.0);
                 let t = p.step([1.0, a1, 0.0], w);
                 *ret += *disc * t.reward;

@@ -24,7 +24,7 @@ use pednav_experiments::evaluate::{Evaluator, PolicyKind};
 use pednav_experiments::plots::{self, PALETTE, Series};
 use pednav_experiments::protocol;
 use pednav_nets::DsacNets;
-use pednav_runtime::RunConfig;
+use pednav_runtime::{RunConfig, RunDir};
 
 #[derive(Parser, Debug)]
 #[command(
@@ -61,10 +61,14 @@ struct Cli {
     out: Option<PathBuf>,
 }
 
-/// The last row of the learner's metrics as (column, value) pairs, when the run has one.
+/// The learner's last metrics row with updates in it (update statistics exist only
+/// for intervals with updates; the rows after the budget was spent have none), as
+/// (column, value) pairs, when the run has one.
 fn last_learner_metrics(run_dir: &Path) -> Option<Vec<(String, f64)>> {
     let (header, rows) = plots::learner_log(run_dir).ok()?;
-    Some(header.into_iter().zip(rows.last()?.iter().copied()).collect())
+    let ups = header.iter().position(|h| h == "updates_per_s")?;
+    let row = rows.iter().rev().find(|r| r[ups] > 0.0).or(rows.last())?;
+    Some(header.into_iter().zip(row.iter().copied()).collect())
 }
 
 fn main() -> Result<()> {
@@ -77,7 +81,7 @@ fn main() -> Result<()> {
     pednav_nets::init_cpu_runtime(None);
     let cfg_path = cli.run_dir.join("config.toml");
     let cfg = RunConfig::load(&cfg_path).with_context(|| format!("reading {}", cfg_path.display()))?;
-    let ckpt = cli.checkpoint.clone().unwrap_or_else(|| cli.run_dir.join("checkpoints").join("learner"));
+    let ckpt = cli.checkpoint.clone().unwrap_or_else(|| RunDir::new(&cli.run_dir).learner_checkpoint());
     let device = candle_core::Device::Cpu;
     let agent = pednav_learner::load_agent(&ckpt, &device).with_context(|| {
         format!("loading the online networks of {} (pednav-diagnose also reads the critic: a folder with only the acting files is not enough)", ckpt.display())

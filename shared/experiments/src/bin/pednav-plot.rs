@@ -18,7 +18,7 @@ use std::path::{Path, PathBuf};
 use anyhow::{Context, Result, bail};
 use clap::{Parser, Subcommand};
 use pednav_experiments::plots::{self, PALETTE, Series, moving_average};
-use pednav_runtime::RunConfig;
+use pednav_runtime::{RunConfig, RunDir};
 use pednav_sim::oracle::{Oracle, OracleConfig};
 use pednav_sim::{ObsMode, Pose, SimConfig, SimWorld};
 
@@ -106,7 +106,7 @@ enum Cmd {
 
 /// (decision steps, discounted return) of every episode of a run.
 fn episodes(run: &Path) -> Result<Vec<(f64, f64)>> {
-    let path = run.join("metrics").join("episodes.csv");
+    let path = RunDir::new(run).metrics_csv("episodes");
     let text = std::fs::read_to_string(&path).with_context(|| {
         format!("{}: no episode log (the curriculum service writes it during a run)", path.display())
     })?;
@@ -259,20 +259,19 @@ fn learner(runs: &[PathBuf], out: &Path) -> Result<()> {
 
 fn curriculum(run: &Path, out: &Path, max: usize) -> Result<()> {
     let cfg = RunConfig::load(&run.join("config.toml"))?;
-    let dir = run.join("checkpoints").join("curriculum-snapshots");
+    let dir = RunDir::new(run).curriculum_snapshots();
     let mut snaps: Vec<PathBuf> = std::fs::read_dir(&dir)
         .with_context(|| format!("{}: no snapshots (saved every 500 episodes)", dir.display()))?
         .flatten()
         .map(|e| e.path())
         .filter(|p| p.extension().is_some_and(|e| e == "json"))
         .collect();
-    let latest = run.join("checkpoints").join("curriculum.json");
+    let latest = RunDir::new(run).curriculum_state();
     snaps.sort();
     if latest.exists() {
         snaps.push(latest);
     }
-    let seed = cfg.seed ^ 0x6375_7272_6963_756c;
-    let n = plots::curriculum_snapshots(&cfg.scene()?, &cfg.curriculum, seed, &snaps, max, out)?;
+    let n = plots::curriculum_snapshots(&cfg.scene()?, &cfg.curriculum, cfg.curriculum_seed(), &snaps, max, out)?;
     println!("wrote {} ({n} snapshots)", out.display());
     Ok(())
 }
@@ -435,7 +434,7 @@ fn main() -> Result<()> {
         }
         Cmd::All { run_dir } => {
             curves(&run_dir, &run_dir.join("plots"), 50)?;
-            if run_dir.join("metrics").join("learner.csv").is_file() {
+            if RunDir::new(&run_dir).metrics_csv("learner").is_file() {
                 learner(std::slice::from_ref(&run_dir), &run_dir.join("plots").join("learner.png"))?;
             }
             let cfg = RunConfig::load(&run_dir.join("config.toml"))?;

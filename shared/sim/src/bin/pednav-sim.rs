@@ -303,7 +303,8 @@ fn record(
     let size = world.config.image_size;
     let mut trail = vec![(start.x, start.y)];
     let mut gif_frames = Vec::new();
-    let (mut ret, mut disc) = (0.0f32, 1.0f32);
+    // γ of the oracle's table (Table IV's 0.99), so the returns printed compare.
+    let mut ret = pednav_sim::DiscountedReturn::new(OracleConfig::default().gamma as f64);
     let mut pose = start;
     let mut outcome = "step limit";
     for _ in 0..=steps {
@@ -323,8 +324,7 @@ fn record(
             Policy::Straight => [1.0, 0.0, 0.0],
         };
         let t = env.step(&[action])?[0];
-        ret += disc * t.reward;
-        disc *= 0.99;
+        ret.add(t.reward);
         pose = t.pose;
         trail.push((pose.x, pose.y));
         if t.terminated {
@@ -332,7 +332,7 @@ fn record(
         }
     }
     save_gif(&gif_frames, 100, out)?;
-    println!("wrote {} ({} frames); {outcome}; discounted return {ret:.2}", out.display(), gif_frames.len());
+    println!("wrote {} ({} frames); {outcome}; discounted return {:.2}", out.display(), gif_frames.len(), ret.value());
     Ok(())
 }
 

@@ -36,9 +36,7 @@ pub struct Vertex {
 /// Shade of the sky (the clear colour, also the haze colour).
 pub const SKY_SHADE: f32 = 0.82;
 
-/// Highest camera the mesh is built for: tops of objects taller than this are
-/// never visible and are not drawn. [`crate::SimConfig::validate`] keeps the eye below it.
-pub const MAX_EYE_HEIGHT: f32 = 3.0;
+pub use crate::config::MAX_EYE_HEIGHT;
 
 /// Direction towards the sun (unnormalised); lights west- and south-facing walls.
 const SUN: [f32; 3] = [-0.6, -0.45, 0.66];
@@ -207,7 +205,7 @@ pub fn part_visible(part: &Part, x: f32, y: f32, yaw: f32, fov: f32) -> bool {
     if d <= part.radius + 1.0 {
         return true;
     }
-    let bearing = crate::pedestrian::wrap_angle(dy.atan2(dx) - yaw).abs();
+    let bearing = crate::scene::wrap_angle(dy.atan2(dx) - yaw).abs();
     let spread = (part.radius / d).min(1.0).asin();
     bearing <= 0.5 * fov + spread + 5f32.to_radians()
 }

@@ -1,8 +1,8 @@
-//! DSAC settings (Table IV) — a section of every run's config file.
+//! DSAC settings (Table IV): the `[dsac]` section of every run's config file.
 
 use serde::{Deserialize, Serialize};
 
-use crate::error::{Result, config_error};
+use crate::error::{ConfigError, Result};
 
 /// Distributional Soft Actor-Critic hyper-parameters. Defaults are the paper's Table IV.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -52,6 +52,15 @@ pub struct DsacConfig {
     /// pixels in x and y, edges replicated (DrQ: 4 at 84×84). 0: off, as the paper.
     /// Pixel observations only.
     pub random_shift: usize,
+    /// Weight λ of the state-prediction auxiliary loss (0: off, as the paper). When
+    /// positive, a linear head on the critic encoder's features regresses the
+    /// simulator's state vector of o_t (`nets.state_dim` floats: goal in the body
+    /// frame, heading, head yaw, map rewards around the agent — the state preset's
+    /// observation), and λ·E[‖ŝ − s‖²] is added to the critic loss so its gradient
+    /// shapes the encoder — the "game features" auxiliary of Lample & Chaplot (2017).
+    /// The state is privileged: it is a training target only and never reaches the
+    /// policy's input, which stays pixels.
+    pub state_aux_weight: f64,
 }
 
 impl Default for DsacConfig {
@@ -74,6 +83,7 @@ impl Default for DsacConfig {
             rate_slack: 4,
             twin_critics: true,
             random_shift: 0,
+            state_aux_weight: 0.0,
         }
     }
 }
@@ -84,10 +94,10 @@ impl DsacConfig {
     #[allow(clippy::neg_cmp_op_on_partial_ord)]
     pub fn validate(&self) -> Result<()> {
         if !(0.0..1.0).contains(&self.gamma) {
-            return Err(config_error("gamma", self.gamma, "must be in [0, 1)"));
+            return Err(ConfigError::learner("gamma", self.gamma, "must be in [0, 1)"));
         }
         if !(self.initial_alpha > 0.0) {
-            return Err(config_error("initial_alpha", self.initial_alpha, "must be positive"));
+            return Err(ConfigError::learner("initial_alpha", self.initial_alpha, "must be positive"));
         }
         for (field, v) in [
             ("lr_alpha", self.lr_alpha),
@@ -96,28 +106,35 @@ impl DsacConfig {
             ("lr_fraction", self.lr_fraction),
         ] {
             if !(v >= 0.0 && v.is_finite()) {
-                return Err(config_error(field, v, "must be a finite non-negative learning rate"));
+                return Err(ConfigError::learner(field, v, "must be a finite non-negative learning rate"));
             }
         }
         if !(self.soft_update > 0.0 && self.soft_update <= 1.0) {
-            return Err(config_error("soft_update", self.soft_update, "must be in (0, 1]"));
+            return Err(ConfigError::learner("soft_update", self.soft_update, "must be in (0, 1]"));
         }
         if !(self.huber_kappa > 0.0) {
-            return Err(config_error("huber_kappa", self.huber_kappa, "must be positive"));
+            return Err(ConfigError::learner("huber_kappa", self.huber_kappa, "must be positive"));
         }
         if let Some(m) = self.max_grad_norm
             && !(m > 0.0)
         {
-            return Err(config_error("max_grad_norm", m, "must be positive (omit it to disable clipping)"));
+            return Err(ConfigError::learner("max_grad_norm", m, "must be positive (omit it to disable clipping)"));
+        }
+        if !(self.state_aux_weight >= 0.0 && self.state_aux_weight.is_finite()) {
+            return Err(ConfigError::learner(
+                "state_aux_weight",
+                self.state_aux_weight,
+                "must be finite and ≥ 0 (0: off)",
+            ));
         }
         if self.batch_size < 2 {
-            return Err(config_error("batch_size", self.batch_size, "must be at least 2"));
+            return Err(ConfigError::learner("batch_size", self.batch_size, "must be at least 2"));
         }
         if self.train_interval == 0 {
-            return Err(config_error("train_interval", self.train_interval, "must be positive"));
+            return Err(ConfigError::learner("train_interval", self.train_interval, "must be positive"));
         }
         if self.warmup < self.batch_size as u64 {
-            return Err(config_error(
+            return Err(ConfigError::learner(
                 "warmup",
                 self.warmup,
                 format!("must be at least batch_size ({})", self.batch_size),

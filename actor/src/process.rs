@@ -1,0 +1,454 @@
+//! The actor process as a struct: [`ActorProcess::open`] builds the simulators, the
+//! local policy and the typed channel ends; [`ActorProcess::run`] loops over
+//! [`ActorProcess::step`] — start episodes, pick up newer weights, act, step and
+//! render, send the steps and the finished episodes' reports, log.
+//!
+//! Invariants: nothing is sent while no learner is subscribed (the [`StepWriter`]
+//! waits); every record carries the weights version its action came from; the
+//! actor's seed is `run seed ⊕ actor id`, mixed with the incarnation so a restarted
+//! actor does not replay its predecessor's episodes.
+
+use std::collections::{BTreeSet, VecDeque};
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+
+use anyhow::{Context, Result, bail};
+use candle_core::{Device, Tensor};
+use pednav_nets::{DsacNets, Obs, PolicyStream};
+use pednav_runtime::channels::{EpisodeReporter, Observation, StepWriter, TaskRequester};
+use pednav_runtime::ipc::HeartbeatPublisher;
+use pednav_runtime::messages::{EpisodeHeader, EpisodePoint, Heartbeat, StepHeader, process_kind, step_flags};
+use pednav_runtime::weights::WeightsClient;
+use pednav_runtime::{ActorPolicy, Ipc, Metrics, RunConfig, RunDir, StopFlag, run_prefix};
+use pednav_sim::{BackendChoice, DiscountedReturn, ObsMode, Pose, STATE_OBS_DIM, SimWorld, VecEnv};
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+
+/// Per-environment episode bookkeeping.
+struct Episode {
+    id: u64,
+    task_id: u64,
+    category: u32,
+    step: u32,
+    points: Vec<EpisodePoint>,
+    ret: DiscountedReturn,
+}
+
+/// What this incarnation sent and received (its stats file).
+#[derive(Default)]
+struct Counters {
+    tasks: u64,
+    last_task_id: u64,
+    steps: u64,
+    episodes: u64,
+    checksum: u32,
+    recent_returns: VecDeque<f32>,
+}
+
+impl Counters {
+    /// Account for a sent record; the sequence number of the next one is `steps`.
+    fn sent(&mut self, header: &StepHeader, observation: &[u8]) {
+        self.checksum = self.checksum.wrapping_add(header.record_crc(observation));
+        self.steps += 1;
+    }
+}
+
+/// Seconds spent per phase over one metrics interval.
+struct Timing {
+    started: Instant,
+    steps: u64,
+    infer: f64,
+    sim: f64,
+    send: f64,
+}
+
+impl Timing {
+    fn new(steps: u64) -> Timing {
+        Timing { started: Instant::now(), steps, infer: 0.0, sim: 0.0, send: 0.0 }
+    }
+}
+
+/// Which actor this is, and how it was started.
+pub struct ActorOptions {
+    /// Actor id (0-based).
+    pub actor: u32,
+    /// Simulator instances (default: the config's `runtime.envs_per_actor`).
+    pub envs: Option<usize>,
+    /// Where to run policy inference.
+    pub device: Device,
+}
+
+/// One actor of a run.
+pub struct ActorProcess {
+    cfg: RunConfig,
+    dir: RunDir,
+    stop: StopFlag,
+    actor: u32,
+    incarnation: u32,
+    name: String,
+    envs: VecEnv,
+    pixels: bool,
+    /// Whether records carry the state vector (the observation in state mode, the
+    /// learner's state-prediction target with `dsac.state_aux_weight` > 0).
+    send_state: bool,
+    // Kept alive for the ports below.
+    _ipc: Ipc,
+    steps: StepWriter,
+    reports: EpisodeReporter,
+    tasks: TaskRequester,
+    weights: WeightsClient,
+    heartbeat: HeartbeatPublisher,
+    metrics: Metrics,
+    device: Device,
+    nets: DsacNets,
+    stream: PolicyStream,
+    versions_used: BTreeSet<u64>,
+    rng: ChaCha8Rng,
+    counters: Counters,
+    episodes: Vec<Option<Episode>>,
+    next_episode: u64,
+    actions: Vec<[f32; 3]>,
+    timing: Timing,
+}
+
+impl ActorProcess {
+    /// The simulators, the policy (the seed's initial weights, version 0, as the
+    /// learner's) and the channels of actor `opts.actor` of the run in `dir`.
+    pub fn open(dir: RunDir, cfg: RunConfig, opts: ActorOptions, stop: StopFlag) -> Result<ActorProcess> {
+        let name = format!("actor-{}", opts.actor);
+        let incarnation = dir.next_incarnation(&name)?;
+        let seed =
+            cfg.seed ^ (opts.actor as u64 + 1).wrapping_mul(0x9E37_79B9_7F4A_7C15) ^ ((incarnation as u64) << 48);
+        let m = opts.envs.unwrap_or(cfg.runtime.envs_per_actor);
+        if m == 0 || m > 4096 {
+            bail!("--envs must be 1 … 4096, got {m}");
+        }
+        let world = Arc::new(SimWorld::new(cfg.scene()?, cfg.sim.clone())?);
+        let backend = BackendChoice::from_env().map_err(anyhow::Error::msg)?;
+        let envs = VecEnv::new(world, m, backend)?;
+        if let Some(r) = envs.renderer() {
+            tracing::info!(adapter = %r.adapter_description(), envs = m, "renderer ready");
+        }
+        let ipc = Ipc::new(
+            &run_prefix(dir.root()),
+            &name,
+            cfg.runtime.step_buffer,
+            Duration::from_secs_f64(cfg.runtime.give_up_secs),
+            stop.clone(),
+        )?;
+        let steps = StepWriter::open(&ipc, cfg.observation_bytes(), stop.clone())?;
+        let reports = EpisodeReporter::open(&ipc, cfg.sim.t_max as usize + 1, stop.clone())?;
+        let tasks = TaskRequester::open(&ipc, Duration::from_secs_f64(cfg.runtime.task_timeout_secs), stop.clone())?;
+        let weights = WeightsClient::open(&ipc)?;
+        let heartbeat = ipc.heartbeat_publisher()?;
+        let metrics = Metrics::open(&dir.metrics(), &dir.tb(), &name)?;
+        // The learner builds its networks from the run seed too: version 0 is the same here and there.
+        let nets = DsacNets::new(&cfg.nets, &opts.device, cfg.seed)?;
+        let stream = PolicyStream::new(&cfg.nets, m, &opts.device);
+        Ok(ActorProcess {
+            pixels: cfg.sim.obs_mode == ObsMode::Pixels,
+            send_state: cfg.sim.obs_mode != ObsMode::Pixels || cfg.dsac.state_aux_weight > 0.0,
+            actor: opts.actor,
+            incarnation,
+            name,
+            envs,
+            _ipc: ipc,
+            steps,
+            reports,
+            tasks,
+            weights,
+            heartbeat,
+            metrics,
+            device: opts.device,
+            nets,
+            stream,
+            versions_used: BTreeSet::new(),
+            rng: ChaCha8Rng::seed_from_u64(seed),
+            counters: Counters::default(),
+            episodes: (0..m).map(|_| None).collect(),
+            next_episode: 0,
+            actions: vec![[0.0; 3]; m],
+            timing: Timing::new(0),
+            cfg,
+            dir,
+            stop,
+        })
+    }
+
+    /// Wait for the learner, step until stopped, write the final stats.
+    pub fn run(mut self) -> Result<()> {
+        tracing::info!(actor = self.actor, incarnation = self.incarnation, envs = self.envs.num_envs(), policy = ?self.cfg.runtime.policy, "actor waiting for the learner and the curriculum service");
+        if !self.steps.wait_for_learner(Duration::from_secs(3600)) {
+            return self.finish("stopped before the learner came up");
+        }
+        self.timing = Timing::new(0);
+        while !self.stop.is_set() {
+            if !self.step()? {
+                break;
+            }
+        }
+        let status = if self.stop.is_set() { "stopped" } else { "ended" };
+        self.finish(status)
+    }
+
+    /// One iteration over all environments; `false` when a send or request saw the
+    /// stop request.
+    pub fn step(&mut self) -> Result<bool> {
+        if !self.start_episodes()? {
+            return Ok(false);
+        }
+        if let Some(new) = self.weights.refresh(&self.nets)? {
+            self.stream.invalidate();
+            tracing::debug!(version = new.version, latency_ms = new.latency_ms, "new weights");
+        }
+        let t0 = Instant::now();
+        self.choose_actions()?;
+        self.timing.infer += t0.elapsed().as_secs_f64();
+        if !self.step_envs()? {
+            return Ok(false);
+        }
+        if self.timing.started.elapsed().as_secs_f64() >= self.cfg.runtime.metrics_every_secs {
+            self.log_interval()?;
+        }
+        Ok(true)
+    }
+
+    /// A new task for every environment without an episode, and its first record.
+    fn start_episodes(&mut self) -> Result<bool> {
+        let starting: Vec<usize> = (0..self.episodes.len()).filter(|&e| self.episodes[e].is_none()).collect();
+        if starting.is_empty() {
+            return Ok(true);
+        }
+        for &e in &starting {
+            let Some(task) = self.tasks.request(self.actor, e as u32)? else { return Ok(false) };
+            self.counters.tasks += 1;
+            self.counters.last_task_id = task.task_id;
+            let pose = Pose { x: task.x, y: task.y, yaw: task.yaw };
+            self.envs
+                .reset(e, pose, self.rng.random())
+                .with_context(|| format!("the curriculum service proposed an invalid task {pose:?}"))?;
+            self.next_episode += 1;
+            self.episodes[e] = Some(Episode {
+                id: self.next_episode,
+                task_id: task.task_id,
+                category: task.category,
+                step: 0,
+                points: vec![EpisodePoint { x: pose.x, y: pose.y, yaw: pose.yaw, reward: 0.0 }],
+                ret: DiscountedReturn::new(self.cfg.dsac.gamma),
+            });
+        }
+        let t0 = Instant::now();
+        let states = self.states();
+        let frames = if self.pixels { Some(self.envs.render()?) } else { None };
+        for &e in &starting {
+            let ep = self.episodes[e].as_ref().expect("just started");
+            let header = StepHeader {
+                actor: self.actor,
+                env: e as u32,
+                incarnation: self.incarnation,
+                flags: step_flags::FIRST,
+                episode: ep.id,
+                policy_version: self.weights.version(),
+                seq: self.counters.steps,
+                state: states[e],
+                ..StepHeader::default()
+            };
+            let Some(bytes) = self.steps.send(header, observation(frames.as_ref(), &states, e))? else {
+                return Ok(false);
+            };
+            if self.pixels {
+                self.stream.reset(e, &bytes)?;
+            }
+            self.counters.sent(&header, &bytes);
+        }
+        drop(frames);
+        self.timing.send += t0.elapsed().as_secs_f64();
+        Ok(true)
+    }
+
+    /// Every environment's state vector when records carry it, else zeros (nobody
+    /// reads them: pixels without the state-prediction loss).
+    fn states(&self) -> Vec<[f32; STATE_OBS_DIM]> {
+        let m = self.envs.num_envs();
+        if self.send_state { (0..m).map(|e| self.envs.state_obs(e)).collect() } else { vec![[0.0; STATE_OBS_DIM]; m] }
+    }
+
+    fn choose_actions(&mut self) -> Result<()> {
+        let m = self.envs.num_envs();
+        match self.cfg.runtime.policy {
+            ActorPolicy::Random => {
+                for a in self.actions.iter_mut() {
+                    *a = std::array::from_fn(|_| self.rng.random_range(-1.0..1.0));
+                }
+            }
+            ActorPolicy::Learned => {
+                let features = if self.pixels {
+                    let all: Vec<usize> = (0..m).collect();
+                    self.stream.features(self.nets.acting_encoder(), &all)?
+                } else {
+                    let s: Vec<f32> = self.states().into_iter().flatten().collect();
+                    let obs = Obs::State(Tensor::from_vec(s, (m, self.cfg.nets.state_dim), &self.device)?);
+                    self.nets.acting_encoder().encode(&obs)?
+                };
+                let dist = self.nets.policy.head(&features)?;
+                let eps = pednav_nets::heads::standard_normal(&mut self.rng, m, &self.device)?;
+                let a = dist.sample(&eps)?.action.to_vec2::<f32>()?;
+                for (dst, src) in self.actions.iter_mut().zip(a) {
+                    *dst = [src[0], src[1], src[2]];
+                }
+                self.versions_used.insert(self.weights.version());
+            }
+        }
+        Ok(())
+    }
+
+    /// Step and render every environment, send each step, report finished episodes.
+    fn step_envs(&mut self) -> Result<bool> {
+        let t0 = Instant::now();
+        let transitions = self.envs.step(&self.actions)?.to_vec();
+        self.timing.sim += t0.elapsed().as_secs_f64();
+        let t0 = Instant::now();
+        let states = self.states();
+        let frames = if self.pixels { Some(self.envs.render()?) } else { None };
+        let mut ended = Vec::new();
+        for (e, t) in transitions.iter().enumerate() {
+            let ep = self.episodes[e].as_mut().expect("every env is in an episode");
+            ep.step = t.step;
+            let mut flags = 0;
+            if t.terminated {
+                flags |= step_flags::TERMINAL;
+            }
+            if t.truncated {
+                flags |= step_flags::TRUNCATED;
+            }
+            if t.collided {
+                flags |= step_flags::COLLIDED;
+            }
+            let header = StepHeader {
+                actor: self.actor,
+                env: e as u32,
+                incarnation: self.incarnation,
+                flags,
+                episode: ep.id,
+                step: t.step,
+                reward: t.reward,
+                action: self.actions[e],
+                policy_version: self.weights.version(),
+                seq: self.counters.steps,
+                state: states[e],
+            };
+            let Some(bytes) = self.steps.send(header, observation(frames.as_ref(), &states, e))? else {
+                return Ok(false);
+            };
+            if self.pixels && !(t.terminated || t.truncated) {
+                self.stream.push(e, self.actions[e], t.reward, &bytes)?;
+            }
+            self.counters.sent(&header, &bytes);
+            ep.points.push(EpisodePoint { x: t.pose.x, y: t.pose.y, yaw: t.pose.yaw, reward: t.reward });
+            ep.ret.add(t.reward);
+            if t.terminated || t.truncated {
+                ended.push((e, t.terminated, t.truncated));
+            }
+        }
+        drop(frames);
+        self.timing.send += t0.elapsed().as_secs_f64();
+        for (e, success, truncated) in ended {
+            let ep = self.episodes[e].take().expect("ended episode exists");
+            let header = EpisodeHeader {
+                actor: self.actor,
+                env: e as u32,
+                task_id: ep.task_id,
+                category: ep.category,
+                success: success as u32,
+                truncated: truncated as u32,
+                length: ep.step,
+                discounted_return: ep.ret.value() as f32,
+                total_reward: ep.ret.undiscounted() as f32,
+            };
+            if !self.reports.send(header, &ep.points)? {
+                return Ok(false);
+            }
+            let c = &mut self.counters;
+            c.episodes += 1;
+            c.recent_returns.push_back(ep.ret.value() as f32);
+            if c.recent_returns.len() > 20 {
+                c.recent_returns.pop_front();
+            }
+        }
+        Ok(true)
+    }
+
+    /// Metrics row, heartbeat and live stats of the interval just ended.
+    fn log_interval(&mut self) -> Result<()> {
+        let t = std::mem::replace(&mut self.timing, Timing::new(self.counters.steps));
+        let secs = t.started.elapsed().as_secs_f64();
+        let c = &self.counters;
+        let n = (c.steps - t.steps).max(1) as f64;
+        let rate = (c.steps - t.steps) as f64 / secs;
+        let r = &c.recent_returns;
+        // No return before the first episode ends.
+        let recent = (!r.is_empty()).then(|| r.iter().sum::<f32>() / r.len() as f32);
+        let version = self.weights.version();
+        self.metrics.log_optional(
+            c.steps,
+            &[
+                ("steps_per_s", Some(rate)),
+                ("episodes", Some(c.episodes as f64)),
+                ("policy_version", Some(version as f64)),
+                ("recent_return", recent.map(f64::from)),
+                ("inference_ms_per_step", Some(1e3 * t.infer / n)),
+                ("sim_ms_per_step", Some(1e3 * t.sim / n)),
+                ("render_send_ms_per_step", Some(1e3 * t.send / n)),
+            ],
+        )?;
+        let _ = self.heartbeat.send_copy(Heartbeat {
+            kind: process_kind::ACTOR,
+            id: self.actor,
+            pid: std::process::id(),
+            env_steps: c.steps,
+            episodes: c.episodes,
+            version,
+            recent_return: recent.unwrap_or(f32::NAN),
+            rate: rate as f32,
+            ..Heartbeat::default()
+        });
+        self.dir.write_stats(&format!("{}.live", self.name), &self.stats_json("running"))?;
+        Ok(())
+    }
+
+    fn stats_json(&self, status: &str) -> serde_json::Value {
+        let (c, versions) = (&self.counters, &self.versions_used);
+        serde_json::json!({
+            "actor": self.actor,
+            "incarnation": self.incarnation,
+            "pid": std::process::id(),
+            "status": status,
+            "steps_sent": c.steps,
+            "checksum": c.checksum,
+            "episodes": c.episodes,
+            "policy_versions_used": versions.len(),
+            "first_policy_version": versions.first(),
+            "last_policy_version": versions.last(),
+            "tasks_received": c.tasks,
+            "last_task_id": c.last_task_id,
+        })
+    }
+
+    fn finish(&self, status: &str) -> Result<()> {
+        self.dir.write_stats(&format!("{}.{}", self.name, self.incarnation), &self.stats_json(status))?;
+        tracing::info!(steps = self.counters.steps, episodes = self.counters.episodes, status, "actor finished");
+        Ok(())
+    }
+}
+
+/// Environment `e`'s observation: its view of the batch render, or its state vector.
+fn observation<'a>(
+    frames: Option<&'a pednav_sim::Frames<'a>>,
+    states: &'a [[f32; STATE_OBS_DIM]],
+    e: usize,
+) -> Observation<'a> {
+    match frames {
+        Some(frames) => Observation::Frame { frames, env: e },
+        None => Observation::State(&states[e]),
+    }
+}

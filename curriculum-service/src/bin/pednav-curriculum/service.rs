@@ -1,0 +1,348 @@
+//! The curriculum service as a struct: [`CurriculumService::open`] restores (or
+//! starts) the run's curriculum and opens its channels, [`CurriculumService::run`]
+//! loops over [`CurriculumService::step`] — answer task requests, take episode
+//! reports, log — until stopped, then saves the state.
+//!
+//! Invariant: the saved state (`checkpoints/curriculum.json`, and a snapshot every
+//! 500 episodes) holds the curriculum, the next task id, the per-category counts and
+//! the decision steps together, so a restart resumes all of them.
+
+use std::collections::{BTreeMap, VecDeque};
+use std::path::Path;
+use std::time::{Duration, Instant};
+
+use anyhow::{Context, Result};
+use pednav_curriculum::{Category, Curriculum, EpisodeOutcome, Fit, ServiceState};
+use pednav_runtime::ipc::{EpisodeSubscriber, HeartbeatPublisher, TaskServer};
+use pednav_runtime::messages::{EpisodeHeader, Heartbeat, TaskResponse, process_kind};
+use pednav_runtime::{Ipc, Metrics, RunConfig, RunDir, StopFlag, run_prefix};
+use pednav_sim::{Pose, Scene};
+
+/// Reported episodes between two saved snapshots of the curriculum state
+/// (`checkpoints/curriculum-snapshots/`, what `pednav-plot curriculum` draws over time).
+const SNAPSHOT_EVERY_EPISODES: u64 = 500;
+
+/// One row per reported episode: `metrics/episodes.csv`.
+struct EpisodeLog {
+    file: std::fs::File,
+}
+
+impl EpisodeLog {
+    fn open(dir: &RunDir) -> Result<EpisodeLog> {
+        let path = dir.metrics_csv("episodes");
+        let new = !path.exists();
+        let mut file = std::fs::OpenOptions::new().create(true).append(true).open(&path)?;
+        if new {
+            use std::io::Write;
+            writeln!(
+                file,
+                "episode,decision_steps,actor,env,task_id,category,x,y,yaw_deg,length,discounted_return,success,truncated"
+            )?;
+        }
+        Ok(EpisodeLog { file })
+    }
+
+    #[allow(clippy::too_many_arguments)]
+    fn write(&mut self, episode: u64, steps: u64, h: &EpisodeHeader, start: Pose, ret: f32) -> Result<()> {
+        use std::io::Write;
+        writeln!(
+            self.file,
+            "{episode},{steps},{},{},{},{},{:.3},{:.3},{:.1},{},{ret:.4},{},{}",
+            h.actor,
+            h.env,
+            h.task_id,
+            category_of(h.category)?.name(),
+            start.x,
+            start.y,
+            start.yaw.to_degrees(),
+            h.length,
+            h.success,
+            h.truncated
+        )?;
+        Ok(())
+    }
+}
+
+/// The curriculum service of one run.
+pub struct CurriculumService {
+    cfg: RunConfig,
+    dir: RunDir,
+    stop: StopFlag,
+    curriculum: Curriculum,
+    next_task_id: u64,
+    /// Tasks proposed per category name (saved with the state).
+    proposed: BTreeMap<String, u64>,
+    /// Decision steps of every reported episode.
+    decision_steps: u64,
+    /// When this process saw the PassFirstTask gate open: (episodes, decision steps).
+    first_task_passed: Option<(u64, u64)>,
+    episode_log: EpisodeLog,
+    // Kept alive for the ports below.
+    _ipc: Ipc,
+    server: TaskServer,
+    reports: EpisodeSubscriber,
+    heartbeat: HeartbeatPublisher,
+    metrics: Metrics,
+    last_fit: Option<Fit>,
+    last_loss: Option<f32>,
+    /// Discounted returns and successes of the last 100 episodes.
+    recent: VecDeque<(f32, bool)>,
+    last_log: Instant,
+    since_save: u64,
+}
+
+impl CurriculumService {
+    /// The run's curriculum (resumed from its saved state when there is one) and its channels.
+    pub fn open(dir: RunDir, stop: StopFlag) -> Result<CurriculumService> {
+        let cfg = dir.load_config()?;
+        let (curriculum, saved) = load_curriculum(&dir.curriculum_state(), &cfg, cfg.scene()?)?;
+        let (next_task_id, proposed, decision_steps) = match saved {
+            Some(s) => {
+                tracing::info!(
+                    episodes = curriculum.episodes(),
+                    t_c = curriculum.scheduler().t_c(),
+                    acl = curriculum.scheduler().in_acl_phase(),
+                    "resumed curriculum state"
+                );
+                (s.next_task_id, s.proposed, s.decision_steps)
+            }
+            None => (1, BTreeMap::new(), 0),
+        };
+        std::fs::create_dir_all(dir.curriculum_snapshots())?;
+        let ipc = Ipc::new(
+            &run_prefix(dir.root()),
+            "curriculum",
+            cfg.runtime.step_buffer,
+            Duration::from_secs_f64(cfg.runtime.give_up_secs),
+            stop.clone(),
+        )?;
+        let server = ipc.task_server()?;
+        let reports = ipc.episode_subscriber()?;
+        let heartbeat = ipc.heartbeat_publisher()?;
+        let metrics = Metrics::open(&dir.metrics(), &dir.tb(), "curriculum")?;
+        let episode_log = EpisodeLog::open(&dir)?;
+        tracing::info!(variant = ?cfg.curriculum.variant, "curriculum service ready");
+        Ok(CurriculumService {
+            cfg,
+            dir,
+            stop,
+            curriculum,
+            next_task_id,
+            proposed,
+            decision_steps,
+            first_task_passed: None,
+            episode_log,
+            _ipc: ipc,
+            server,
+            reports,
+            heartbeat,
+            metrics,
+            last_fit: None,
+            last_loss: None,
+            recent: VecDeque::new(),
+            last_log: Instant::now(),
+            since_save: 0,
+        })
+    }
+
+    /// Step until stopped, then save the state and the final counters.
+    pub fn run(mut self) -> Result<()> {
+        while !self.stop.is_set() {
+            if !self.step()? {
+                std::thread::sleep(Duration::from_micros(500));
+            }
+        }
+        self.save(&self.dir.curriculum_state())?;
+        let c = &self.curriculum;
+        self.dir.write_stats(
+            "curriculum",
+            &serde_json::json!({
+                "episodes": c.episodes(),
+                "tasks_issued": self.next_task_id - 1,
+                "proposed": self.proposed,
+                "t_c": c.scheduler().t_c(),
+                "decision_steps": self.decision_steps,
+                "acl_phase": c.scheduler().in_acl_phase(),
+                // When this process saw the PassFirstTask gate open (null if it opened
+                // before a resume, or has not): episodes and decision steps reported so far.
+                "first_task_passed": self.first_task_passed
+                    .map(|(episodes, steps)| serde_json::json!({"episodes": episodes, "decision_steps": steps})),
+            }),
+        )?;
+        tracing::info!(episodes = c.episodes(), "curriculum service stopped; state saved");
+        Ok(())
+    }
+
+    /// Answer every waiting task request, take every waiting episode report, and log
+    /// when the interval is over; returns whether there was anything to do.
+    pub fn step(&mut self) -> Result<bool> {
+        let mut busy = self.answer_requests()?;
+        busy |= self.take_reports()?;
+        if self.last_log.elapsed().as_secs_f64() >= self.cfg.runtime.metrics_every_secs {
+            self.last_log = Instant::now();
+            self.log_interval()?;
+        }
+        Ok(busy)
+    }
+
+    fn answer_requests(&mut self) -> Result<bool> {
+        let mut busy = false;
+        while let Some(request) = self.server.receive().map_err(|e| anyhow::anyhow!("task server: {e:?}"))? {
+            busy = true;
+            let p = self.curriculum.propose()?;
+            if p.fit.is_some() {
+                self.last_fit = p.fit;
+            }
+            *self.proposed.entry(p.category.name().to_string()).or_default() += 1;
+            let response = TaskResponse {
+                x: p.pose.x,
+                y: p.pose.y,
+                yaw: p.pose.yaw,
+                category: p.category.code(),
+                task_id: self.next_task_id,
+            };
+            self.next_task_id += 1;
+            if let Err(e) = request.send_copy(response) {
+                tracing::warn!(actor = request.payload().actor, "task response not delivered: {e:?}");
+            }
+        }
+        Ok(busy)
+    }
+
+    fn take_reports(&mut self) -> Result<bool> {
+        let mut busy = false;
+        while let Some(sample) = self.reports.receive().map_err(|e| anyhow::anyhow!("episode subscriber: {e:?}"))? {
+            busy = true;
+            let h = *sample.user_header();
+            let points = sample.payload();
+            if points.len() != h.length as usize + 1 {
+                tracing::warn!(
+                    actor = h.actor,
+                    env = h.env,
+                    "episode report with {} points for {} steps: ignored",
+                    points.len(),
+                    h.length
+                );
+                continue;
+            }
+            let start = Pose { x: points[0].x, y: points[0].y, yaw: points[0].yaw };
+            let outcome = EpisodeOutcome {
+                category: category_of(h.category)?,
+                poses: points.iter().map(|p| Pose { x: p.x, y: p.y, yaw: p.yaw }).collect(),
+                rewards: points[1..].iter().map(|p| p.reward).collect(),
+                truncated: h.truncated != 0,
+                success: h.success != 0,
+            };
+            drop(sample);
+            self.record(&h, start, &outcome)?;
+        }
+        Ok(busy)
+    }
+
+    /// One reported episode: Algorithm 1's update, the episode log, snapshots and saves.
+    fn record(&mut self, h: &EpisodeHeader, start: Pose, outcome: &EpisodeOutcome) -> Result<()> {
+        let was_acl = self.curriculum.scheduler().in_acl_phase();
+        let summary = self.curriculum.report(outcome)?;
+        self.decision_steps += h.length as u64;
+        let episodes = self.curriculum.episodes();
+        if !was_acl && self.curriculum.scheduler().in_acl_phase() {
+            // The PassFirstTask gate opened with this episode (NavACL⁺).
+            self.first_task_passed = Some((episodes, self.decision_steps));
+            tracing::info!(episodes, decision_steps = self.decision_steps, "PassFirstTask passed: ACL phase starts");
+        }
+        if let Some(l) = summary.trained_loss {
+            self.last_loss = Some(l);
+        }
+        self.episode_log.write(episodes, self.decision_steps, h, start, summary.discounted_return)?;
+        if episodes.is_multiple_of(SNAPSHOT_EVERY_EPISODES) {
+            let name = format!("ep{episodes:08}-steps{}.json", self.decision_steps);
+            self.save(&self.dir.curriculum_snapshots().join(name))?;
+        }
+        self.recent.push_back((summary.discounted_return, outcome.success));
+        if self.recent.len() > 100 {
+            self.recent.pop_front();
+        }
+        self.since_save += 1;
+        if self.since_save >= self.cfg.runtime.curriculum_save_every_episodes {
+            self.save(&self.dir.curriculum_state())?;
+            self.since_save = 0;
+        }
+        Ok(())
+    }
+
+    /// Metrics row, log line and heartbeat; statistics that do not exist yet (no
+    /// episode, no fit) are not written.
+    fn log_interval(&mut self) -> Result<()> {
+        let c = &self.curriculum;
+        let s = c.scheduler();
+        let n = self.recent.len();
+        let mean_return = (n > 0).then(|| self.recent.iter().map(|r| r.0 as f64).sum::<f64>() / n as f64);
+        let success = (n > 0).then(|| self.recent.iter().filter(|r| r.1).count() as f64 / n as f64);
+        let count = |cat: Category| Some(self.proposed.get(cat.name()).copied().unwrap_or(0) as f64);
+        let values = [
+            ("episodes", Some(c.episodes() as f64)),
+            ("phase_acl", Some(if s.in_acl_phase() { 1.0 } else { 0.0 })),
+            ("t_c", Some(s.t_c() as f64)),
+            ("first_task_mean_return", s.gate().mean().map(|m| m as f64)),
+            ("mean_return_100", mean_return),
+            ("success_rate_100", success),
+            ("mu", self.last_fit.map(|f| f.mu as f64)),
+            ("sigma", self.last_fit.map(|f| f.sigma as f64)),
+            ("fr_loss", self.last_loss.map(|l| l as f64)),
+            ("n_first", count(Category::First)),
+            ("n_fixed", count(Category::Fixed)),
+            ("n_easy", count(Category::Easy)),
+            ("n_frontier", count(Category::Frontier)),
+            ("n_random", count(Category::Random)),
+            ("n_hard", count(Category::Hard)),
+        ];
+        self.metrics.log_optional(c.episodes(), &values)?;
+        tracing::info!(
+            episodes = c.episodes(),
+            acl = s.in_acl_phase(),
+            t_c = s.t_c(),
+            first_task_mean = ?s.gate().mean(),
+            mu = ?self.last_fit.map(|f| f.mu),
+            sigma = ?self.last_fit.map(|f| f.sigma),
+            loss = ?self.last_loss,
+            proposed = ?self.proposed,
+            "curriculum"
+        );
+        let _ = self.heartbeat.send_copy(Heartbeat {
+            kind: process_kind::CURRICULUM,
+            pid: std::process::id(),
+            phase: s.in_acl_phase() as u32,
+            acl_steps: s.t_c(),
+            episodes: c.episodes(),
+            recent_return: mean_return.map_or(f32::NAN, |m| m as f32),
+            ..Heartbeat::default()
+        });
+        Ok(())
+    }
+
+    fn save(&self, path: &Path) -> Result<()> {
+        let state = ServiceState {
+            curriculum: self.curriculum.state()?,
+            next_task_id: self.next_task_id,
+            proposed: self.proposed.clone(),
+            decision_steps: self.decision_steps,
+        };
+        Ok(state.save(path)?)
+    }
+}
+
+/// The run's curriculum, restored from the saved state at `path` when there is one.
+pub fn load_curriculum(path: &Path, cfg: &RunConfig, scene: Scene) -> Result<(Curriculum, Option<ServiceState>)> {
+    if !path.exists() {
+        return Ok((Curriculum::new(cfg.curriculum.clone(), scene, cfg.curriculum_seed())?, None));
+    }
+    let saved = ServiceState::load(path)?;
+    let curriculum = pednav_curriculum::classify::restore(&cfg.curriculum, scene, cfg.curriculum_seed(), &saved)
+        .with_context(|| format!("restoring {}", path.display()))?;
+    Ok((curriculum, Some(saved)))
+}
+
+/// The category of an episode report's wire code; an unknown code names itself.
+fn category_of(code: u32) -> Result<Category> {
+    Category::from_code(code).with_context(|| format!("unknown curriculum category code {code} in an episode report"))
+}

@@ -1,0 +1,157 @@
+//! `pednav-run launch`: from the flags to a prepared run — config resolved and
+//! checked, devices opened, run directory created or resumed, the run locked —
+//! then handed to the [`Supervisor`].
+//!
+//! Invariant: everything that can refuse a run is checked before any process starts.
+
+use std::path::PathBuf;
+
+use anyhow::{Context, Result, bail};
+use clap::Args;
+use pednav_nets::DeviceSpec;
+use pednav_runtime::{RunConfig, RunDir, StopFlag, run_prefix};
+
+use crate::supervisor::{ProcessPlan, Supervisor};
+
+/// Arguments of `launch`.
+#[derive(Args)]
+pub struct Launch {
+    /// Number of actor processes.
+    #[arg(long, default_value_t = 2)]
+    actors: u32,
+    /// Config file (TOML). Required for a new run; omit it to resume RUN_DIR.
+    #[arg(long)]
+    config: Option<PathBuf>,
+    /// Run directory (default: runs/<config name>-<unix time>). An existing one is resumed.
+    #[arg(long)]
+    run_dir: Option<PathBuf>,
+    /// Override the config's seed (new runs only).
+    #[arg(long)]
+    seed: Option<u64>,
+    /// Override one config field, `section.field=value` (repeatable; new runs only;
+    /// the run directory's config.toml records the result), e.g.
+    /// `--set dsac.twin_critics=true --set runtime.max_env_steps=500000`.
+    #[arg(long = "set", value_name = "FIELD=VALUE")]
+    overrides: Vec<String>,
+    /// Folder holding pednav-actor, pednav-learner and pednav-curriculum (default: next to this binary).
+    #[arg(long)]
+    bin_dir: Option<PathBuf>,
+    /// Learner compute threads (default: all cores).
+    #[arg(long)]
+    learner_threads: Option<usize>,
+    /// Simulator instances per actor (default: the config's `runtime.envs_per_actor`).
+    #[arg(long)]
+    envs: Option<usize>,
+    /// Where the learner trains: cpu, cuda or cuda:N (default: the config's
+    /// `runtime.device`). CUDA needs the binaries of `deploy/build_cuda.sh`.
+    #[arg(long)]
+    device: Option<DeviceSpec>,
+    /// Where the actors run policy inference (default: the config's `runtime.actor_device`).
+    #[arg(long)]
+    actor_device: Option<DeviceSpec>,
+}
+
+/// Open every GPU the run will use, so a missing CUDA build or GPU stops the launch
+/// before any process starts (the CPU needs no check).
+pub fn check_devices(learner: DeviceSpec, actors: DeviceSpec) -> Result<()> {
+    for (whose, spec, field) in [
+        ("the learner's", learner, "runtime.device / --device"),
+        ("the actors'", actors, "runtime.actor_device / --actor-device"),
+    ] {
+        if spec.is_gpu() {
+            spec.open().with_context(|| format!("{whose} device ({field})"))?;
+        }
+    }
+    Ok(())
+}
+
+/// Prepare the run of `args` and supervise it to the end.
+pub fn launch(args: Launch) -> Result<()> {
+    let Launch { actors, config, run_dir, seed, overrides, bin_dir, learner_threads, envs, device, actor_device } =
+        args;
+    if let Some(m) = envs
+        && (m == 0 || m > 4096)
+    {
+        bail!("--envs must be 1 … 4096, got {m}");
+    }
+    if actors == 0 || actors as usize > pednav_runtime::ipc::MAX_ACTORS {
+        bail!("--actors must be 1 … {}, got {actors}", pednav_runtime::ipc::MAX_ACTORS);
+    }
+    // 1. Config and run directory: everything is checked before any process starts.
+    let (cfg, run_dir) = match (config, run_dir) {
+        (Some(path), run_dir) => {
+            let mut cfg = RunConfig::load_with(&path, &overrides)?;
+            if let Some(s) = seed {
+                cfg.seed = s;
+            }
+            let dir = run_dir.unwrap_or_else(|| {
+                let stem = path.file_stem().map(|s| s.to_string_lossy().to_string()).unwrap_or("run".into());
+                let secs = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).unwrap().as_secs();
+                PathBuf::from("runs").join(format!("{stem}-{secs}"))
+            });
+            (cfg, dir)
+        }
+        (None, Some(dir)) => {
+            let path = dir.join("config.toml");
+            if !path.exists() {
+                bail!("{} has no config.toml: pass --config FILE to start a new run there", dir.display());
+            }
+            if seed.is_some() || !overrides.is_empty() {
+                bail!("--seed and --set only apply to new runs; {} already has its config", dir.display());
+            }
+            (RunConfig::load(&path)?, dir)
+        }
+        (None, None) => bail!("pass --config FILE (a new run) or --run-dir DIR (resume)"),
+    };
+    let (learner_device, actor_device) =
+        (device.unwrap_or(cfg.runtime.device), actor_device.unwrap_or(cfg.runtime.actor_device));
+    check_devices(learner_device, actor_device)?;
+    let bins = bin_dir.map_or_else(default_bin_dir, Ok)?;
+    for b in ["pednav-actor", "pednav-learner", "pednav-curriculum"] {
+        if !bins.join(b).exists() {
+            bail!("{} not found in {} (build with `cargo build --release`)", b, bins.display());
+        }
+    }
+    let dir = RunDir::new(&run_dir);
+    let resumed = dir.prepare(&cfg)?;
+    let lock = dir.launcher_lock();
+    if let Some(pid) = std::fs::read_to_string(&lock).ok().and_then(|s| s.trim().parse::<i32>().ok())
+        && pid_alive(pid)
+        && pid != std::process::id() as i32
+    {
+        bail!("{} is already being run by pednav-run (pid {pid})", run_dir.display());
+    }
+    std::fs::write(&lock, std::process::id().to_string())?;
+    let _ = std::fs::remove_file(dir.done_marker());
+    let stop = StopFlag::install();
+    eprintln!(
+        "pednav: {} run {} — {} actor(s) × {} envs, variant {:?}, learner on {learner_device}, actors' inference \
+         on {actor_device}, iceoryx2 prefix {}",
+        if resumed { "resuming" } else { "starting" },
+        run_dir.display(),
+        actors,
+        envs.unwrap_or(cfg.runtime.envs_per_actor),
+        cfg.curriculum.variant,
+        run_prefix(&run_dir)
+    );
+    let plan = ProcessPlan { bins, actors, envs, learner_threads, learner_device, actor_device };
+    let result = Supervisor::start(&dir, &cfg, &plan, stop).and_then(Supervisor::run);
+    let _ = std::fs::remove_file(&lock);
+    let summary = std::fs::read_to_string(dir.stats().join("learner.json")).unwrap_or_default();
+    eprintln!(
+        "pednav: run directory {}\n{}",
+        run_dir.display(),
+        summary.lines().take(8).collect::<Vec<_>>().join("\n")
+    );
+    result
+}
+
+fn default_bin_dir() -> Result<PathBuf> {
+    let exe = std::env::current_exe().context("locating pednav-run")?;
+    Ok(exe.parent().context("pednav-run has no folder")?.to_path_buf())
+}
+
+fn pid_alive(pid: i32) -> bool {
+    // SAFETY: signal 0 only checks for existence.
+    pid > 0 && unsafe { libc::kill(pid, 0) } == 0
+}

@@ -1,0 +1,65 @@
+//! `pednav-run` — starts and supervises the processes of one pednav run.
+//!
+//! `launch` validates the config (nothing starts on a bad one), prepares the run
+//! directory (or resumes it), removes stale iceoryx2 resources of this run,
+//! starts the curriculum service, the learner and N actors with their logs in
+//! `<run>/logs/`, restarts an actor that dies, shows a live progress line from
+//! the processes' heartbeats, and on Ctrl-C / SIGTERM stops the actors first,
+//! then the learner (which drains the step stream and writes a final
+//! checkpoint) and the curriculum service (which saves its state).
+//!
+//! Children run in their own process group (so a terminal's Ctrl-C reaches the
+//! launcher only, which then stops them in order) and get SIGTERM if the
+//! launcher itself dies. `launch.rs` turns the flags into a prepared run,
+//! `supervisor.rs` keeps the processes alive.
+
+mod bench;
+mod launch;
+mod supervisor;
+
+use std::path::PathBuf;
+
+use anyhow::{Context, Result};
+use clap::{Parser, Subcommand};
+use pednav_runtime::RunConfig;
+
+#[derive(Parser)]
+#[command(version, about = "Start, supervise and stop the processes of a pednav run")]
+struct Cli {
+    #[command(subcommand)]
+    command: Cmd,
+}
+
+#[derive(Subcommand)]
+enum Cmd {
+    /// Start (or resume) a run: curriculum service, learner and N actors.
+    Launch(launch::Launch),
+    /// Measure the runtime: step-stream throughput, weights latency, whole-system env steps/s.
+    #[command(subcommand)]
+    Bench(bench::Bench),
+    /// Validate a config file and print the resolved config.
+    Check {
+        /// Config file (TOML).
+        config: PathBuf,
+        /// Override one config field, `section.field=value` (repeatable), as `launch --set`.
+        #[arg(long = "set", value_name = "FIELD=VALUE")]
+        overrides: Vec<String>,
+    },
+}
+
+fn main() -> Result<()> {
+    pednav_runtime::init_logging();
+    match Cli::parse().command {
+        Cmd::Bench(b) => bench::run(b),
+        Cmd::Check { config, overrides } => {
+            let cfg = RunConfig::load_with(&config, &overrides)?;
+            launch::check_devices(cfg.runtime.device, cfg.runtime.actor_device).with_context(|| {
+                format!("{}: the config is valid, but its devices cannot be used", config.display())
+            })?;
+            print!("{}", cfg.to_toml());
+            eprintln!("{}: valid", config.display());
+            Ok(())
+        }
+        Cmd::Launch(args) => launch::launch(args),
+    }
+}

@@ -1,0 +1,466 @@
+//! The learner process as a struct: [`LearnerProcess::open`] builds (or resumes)
+//! the learner and its channels, [`LearnerProcess::run`] loops over
+//! [`LearnerProcess::step`] — take step records, update when the replay ratio
+//! allows, publish, checkpoint, log — until stopped, then drains and writes the
+//! final checkpoint.
+//!
+//! Invariant: every checkpoint holds the DSAC state, the limiter's counters and
+//! this process's [`ProcessState`] written together, so a resume continues the
+//! same batch sequence and step count.
+
+use std::collections::BTreeMap;
+use std::time::{Duration, Instant};
+
+use anyhow::{Context, Result};
+use candle_core::Device;
+use pednav_learner::{
+    Dsac, DualReplay, Frame, FrameKind, RateLimiter, Step, UpdateStats, checkpoint_exists, load_checkpoint,
+    save_checkpoint,
+};
+use pednav_runtime::ipc::{HeartbeatPublisher, StepSample, StepSubscriber, receive_step_round};
+use pednav_runtime::messages::{Heartbeat, StepHeader, process_kind, state_payload, step_flags};
+use pednav_runtime::weights::WeightsBroadcaster;
+use pednav_runtime::{Ipc, Metrics, RunConfig, RunDir, StopFlag, run_prefix};
+use rand::SeedableRng;
+use rand_chacha::ChaCha8Rng;
+
+/// Records received from one actor incarnation (for the integration test's
+/// count-and-checksum comparison).
+#[derive(Default, Clone, Copy, serde::Serialize)]
+struct StreamTally {
+    records: u64,
+    checksum: u32,
+    last_seq: Option<u64>,
+    gaps: u64,
+}
+
+/// What the learner process adds to a DSAC checkpoint (`extra` in its state file), so
+/// that a resume continues the same batch sequence and step count.
+#[derive(serde::Serialize, serde::Deserialize)]
+#[serde(deny_unknown_fields)]
+struct ProcessState {
+    /// The batch sampler's RNG.
+    sample_rng: ChaCha8Rng,
+    /// Step records received over the whole run (all incarnations).
+    received_total: u64,
+}
+
+struct Learner {
+    dsac: Dsac,
+    limiter: RateLimiter,
+    replay: DualReplay,
+    sample_rng: ChaCha8Rng,
+    received: u64,
+    tallies: BTreeMap<(u32, u32), StreamTally>,
+    kind: FrameKind,
+    refill_until: u64,
+    resumed_from: Option<u64>,
+}
+
+impl Learner {
+    /// Take one step record into the replay. A record of the wrong size (an actor
+    /// built from another config) is logged and dropped, never stored.
+    fn take(&mut self, h: &StepHeader, bytes: &[u8]) -> Result<()> {
+        let expected = match self.kind {
+            FrameKind::Pixels { size } => size * size,
+            FrameKind::State { dim } => state_payload::bytes(dim),
+        };
+        if bytes.len() != expected {
+            tracing::error!(actor = h.actor, got = bytes.len(), expected, "step record of the wrong size dropped");
+            return Ok(());
+        }
+        let tally = self.tallies.entry((h.actor, h.incarnation)).or_default();
+        if let Some(last) = tally.last_seq
+            && h.seq != last + 1
+        {
+            tally.gaps += 1;
+            tracing::error!(actor = h.actor, seq = h.seq, last, "gap in the step stream");
+        }
+        tally.last_seq = Some(h.seq);
+        tally.records += 1;
+        tally.checksum = tally.checksum.wrapping_add(h.record_crc(bytes));
+        self.received += 1;
+        let state: Vec<f32>;
+        let frame = match self.kind {
+            FrameKind::Pixels { .. } => Frame::Pixels(bytes),
+            FrameKind::State { .. } => {
+                state = state_payload::decode_state(bytes);
+                Frame::State(&state)
+            }
+        };
+        self.replay.push(&Step {
+            stream: h.stream(),
+            first: h.has(step_flags::FIRST),
+            frame,
+            action: h.action,
+            reward: h.reward,
+            terminal: h.has(step_flags::TERMINAL),
+            state_target: Some(&h.state),
+        })?;
+        if self.received > self.refill_until {
+            self.limiter.inserted(1);
+        }
+        Ok(())
+    }
+
+    /// Receive one fair round of step records ([`receive_step_round`]) and take
+    /// them all into the replay; returns how many there were (0: nothing waiting).
+    fn take_round(&mut self, steps_in: &StepSubscriber, round: &mut Vec<StepSample>) -> Result<u64> {
+        receive_step_round(steps_in, round)?;
+        let n = round.len() as u64;
+        for sample in round.drain(..) {
+            self.take(sample.user_header(), sample.payload())?;
+        }
+        Ok(n)
+    }
+
+    fn refilling(&self) -> bool {
+        self.received <= self.refill_until
+    }
+}
+
+/// Sums over one metrics interval.
+struct Interval {
+    started: Instant,
+    received: u64,
+    updates: u64,
+    stats: UpdateStats,
+    n: u32,
+    t_update: f64,
+    t_sample: f64,
+}
+
+impl Interval {
+    fn new(received: u64, updates: u64) -> Interval {
+        Interval {
+            started: Instant::now(),
+            received,
+            updates,
+            stats: UpdateStats::default(),
+            n: 0,
+            t_update: 0.0,
+            t_sample: 0.0,
+        }
+    }
+
+    fn add(&mut self, s: &UpdateStats) {
+        self.n += 1;
+        let sum = &mut self.stats;
+        for (acc, v) in [
+            (&mut sum.critic_loss, s.critic_loss),
+            (&mut sum.policy_loss, s.policy_loss),
+            (&mut sum.fraction_loss, s.fraction_loss),
+            (&mut sum.alpha_loss, s.alpha_loss),
+            (&mut sum.alpha, s.alpha),
+            (&mut sum.entropy, s.entropy),
+            (&mut sum.q_mean, s.q_mean),
+            (&mut sum.state_loss, s.state_loss),
+        ] {
+            *acc += v;
+        }
+    }
+
+    /// Mean over the interval's updates; `None` without updates (the CSV cell stays
+    /// empty: no placeholder zeros).
+    fn mean(&self, sum: f64) -> Option<f64> {
+        (self.n > 0).then(|| sum / self.n as f64)
+    }
+}
+
+/// The learner process: the learner's state, its channels and its bookkeeping.
+pub struct LearnerProcess {
+    cfg: RunConfig,
+    dir: RunDir,
+    stop: StopFlag,
+    l: Learner,
+    /// Step records received over the whole run (all incarnations of this process).
+    received_total: u64,
+    // Kept alive for the ports below.
+    _ipc: Ipc,
+    steps_in: StepSubscriber,
+    weights_out: WeightsBroadcaster,
+    heartbeat: HeartbeatPublisher,
+    metrics: Metrics,
+    round: Vec<StepSample>,
+    started: Instant,
+    last_checkpoint: Instant,
+    interval: Interval,
+    /// Set once `runtime.max_updates` or `max_env_steps` is reached.
+    budget_spent: Option<&'static str>,
+}
+
+impl LearnerProcess {
+    /// Build the learner for the run in `dir` on `device` — resumed from the run's
+    /// checkpoint when it has one — open its channels and publish the first weights.
+    pub fn open(dir: RunDir, cfg: RunConfig, device: &Device, stop: StopFlag) -> Result<LearnerProcess> {
+        let mut dsac = Dsac::new(&cfg.dsac, &cfg.nets, device, cfg.seed)?;
+        let mut limiter = RateLimiter::new(cfg.dsac.warmup, cfg.dsac.train_interval, cfg.dsac.rate_slack);
+        let mut sample_rng = ChaCha8Rng::seed_from_u64(cfg.seed);
+        sample_rng.set_stream(7);
+        let mut resumed_from = None;
+        let mut received_total = 0u64;
+        let ckpt = dir.learner_checkpoint();
+        if checkpoint_exists(&ckpt) {
+            let meta =
+                load_checkpoint(&ckpt, &mut dsac).with_context(|| format!("resuming from {}", ckpt.display()))?;
+            if let Some(l) = meta.limiter {
+                limiter = l;
+            }
+            let process: ProcessState = serde_json::from_value(meta.extra.clone()).with_context(|| {
+                format!(
+                    "{}: the learner process's state (`extra` in state.json: the batch sampler's RNG and the \
+                     steps received) is missing or damaged",
+                    ckpt.display()
+                )
+            })?;
+            sample_rng = process.sample_rng;
+            received_total = process.received_total;
+            resumed_from = Some(dsac.updates);
+            tracing::info!(updates = dsac.updates, inserted = limiter.inserted, "resumed from checkpoint");
+        }
+        let kind = cfg.frame_kind();
+        let mut replay = DualReplay::new(&cfg.replay, kind, cfg.nets.history, device)?;
+        if cfg.dsac.state_aux_weight > 0.0 {
+            replay = replay.with_state_targets(cfg.nets.state_dim)?;
+        }
+        let l = Learner {
+            dsac,
+            limiter,
+            replay,
+            sample_rng,
+            received: 0,
+            tallies: BTreeMap::new(),
+            kind,
+            refill_until: if resumed_from.is_some() { cfg.dsac.warmup } else { 0 },
+            resumed_from,
+        };
+        let ipc = Ipc::new(
+            &run_prefix(dir.root()),
+            "learner",
+            cfg.runtime.step_buffer,
+            Duration::from_secs_f64(cfg.runtime.give_up_secs),
+            stop.clone(),
+        )?;
+        let steps_in = ipc.step_subscriber()?;
+        let weights_out = WeightsBroadcaster::open(&ipc, &l.dsac.nets)?;
+        let heartbeat = ipc.heartbeat_publisher()?;
+        let metrics = Metrics::open(&dir.metrics(), &dir.tb(), "learner")?;
+        weights_out.publish(&l.dsac.nets, l.dsac.updates)?;
+        tracing::info!(
+            weights = pednav_runtime::weights::acting_len(&l.dsac.nets),
+            warmup = cfg.dsac.warmup,
+            batch = cfg.dsac.batch_size,
+            "learner ready"
+        );
+        let interval = Interval::new(0, l.dsac.updates);
+        Ok(LearnerProcess {
+            cfg,
+            dir,
+            stop,
+            l,
+            received_total,
+            _ipc: ipc,
+            steps_in,
+            weights_out,
+            heartbeat,
+            metrics,
+            round: Vec::new(),
+            started: Instant::now(),
+            last_checkpoint: Instant::now(),
+            interval,
+            budget_spent: None,
+        })
+    }
+
+    /// Step until stopped, then drain what the actors already sent (the launcher
+    /// stops them first) and write the final checkpoint.
+    pub fn run(mut self) -> Result<()> {
+        while !self.stop.is_set() {
+            self.step()?;
+        }
+        let drain_until = Instant::now() + Duration::from_millis(500);
+        while Instant::now() < drain_until {
+            if self.take_round()? == 0 {
+                std::thread::sleep(Duration::from_millis(10));
+            }
+        }
+        self.save()?;
+        let status = self.budget_spent.unwrap_or("stopped");
+        write_stats(&self.dir, &self.l, self.received_total, status)?;
+        tracing::info!(
+            updates = self.l.dsac.updates,
+            received = self.received_total,
+            status,
+            "final checkpoint written"
+        );
+        Ok(())
+    }
+
+    /// One pass: inserts as far as the replay ratio allows (always while refilling or
+    /// once the budget is spent), one update when the data allows it, the metrics
+    /// interval, the budget.
+    pub fn step(&mut self) -> Result<()> {
+        // One round takes at most STEP_ROUND_PER_ACTOR records from every actor, so
+        // no actor starves while another's queue is always full.
+        let mut took = 0;
+        while took < 512 && (self.l.limiter.can_insert() || self.l.refilling() || self.budget_spent.is_some()) {
+            let n = self.take_round()?;
+            if n == 0 {
+                break;
+            }
+            took += n;
+        }
+        if self.budget_spent.is_none() && !self.l.refilling() && self.l.limiter.can_update() {
+            self.update()?;
+        } else if took == 0 {
+            std::thread::sleep(Duration::from_micros(200));
+        }
+        if self.interval.started.elapsed().as_secs_f64() >= self.cfg.runtime.metrics_every_secs {
+            self.log_interval()?;
+        }
+        if self.budget_spent.is_none() {
+            self.check_budget()?;
+        }
+        Ok(())
+    }
+
+    fn take_round(&mut self) -> Result<u64> {
+        let n = self.l.take_round(&self.steps_in, &mut self.round)?;
+        self.received_total += n;
+        Ok(n)
+    }
+
+    /// One DSAC update, then the weights broadcast and checkpoint when due.
+    fn update(&mut self) -> Result<()> {
+        let c = &self.cfg;
+        let t0 = Instant::now();
+        let batch = self.l.replay.sample_shifted(c.dsac.batch_size, c.dsac.random_shift, &mut self.l.sample_rng)?;
+        self.interval.t_sample += t0.elapsed().as_secs_f64();
+        let t0 = Instant::now();
+        let stats = self.l.dsac.update(&batch)?;
+        self.interval.t_update += t0.elapsed().as_secs_f64();
+        self.l.limiter.updated();
+        self.interval.add(&stats);
+        let updates = self.l.dsac.updates;
+        if updates.is_multiple_of(c.runtime.weights_every) {
+            self.weights_out.publish(&self.l.dsac.nets, updates)?;
+        }
+        if updates.is_multiple_of(c.runtime.checkpoint_every_updates)
+            || self.last_checkpoint.elapsed().as_secs_f64() > c.runtime.checkpoint_every_secs
+        {
+            self.save()?;
+            self.last_checkpoint = Instant::now();
+        }
+        Ok(())
+    }
+
+    fn save(&mut self) -> Result<()> {
+        let l = &mut self.l;
+        let extra = serde_json::to_value(ProcessState {
+            sample_rng: l.sample_rng.clone(),
+            received_total: self.received_total,
+        })?;
+        save_checkpoint(&self.dir.learner_checkpoint(), &mut l.dsac, Some(l.limiter), extra)?;
+        Ok(())
+    }
+
+    /// Metrics row, log line, heartbeat and live stats of the interval just ended.
+    fn log_interval(&mut self) -> Result<()> {
+        let iv = std::mem::replace(&mut self.interval, Interval::new(self.l.received, self.l.dsac.updates));
+        let secs = iv.started.elapsed().as_secs_f64();
+        let l = &self.l;
+        let ups = l.dsac.updates - iv.updates;
+        let steps = l.received - iv.received;
+        let per_update = |t: f64| (ups > 0).then(|| 1e3 * t / ups as f64);
+        let s = &iv.stats;
+        let mut row = vec![
+            ("elapsed_s", Some(self.started.elapsed().as_secs_f64())),
+            ("updates", Some(l.dsac.updates as f64)),
+            ("env_steps_per_s", Some(steps as f64 / secs)),
+            ("updates_per_s", Some(ups as f64 / secs)),
+            ("update_ms", per_update(iv.t_update)),
+            ("sample_ms", per_update(iv.t_sample)),
+            ("replay_terminal", Some(l.replay.terminal_len() as f64)),
+            ("replay_nonterminal", Some(l.replay.nonterminal_len() as f64)),
+            ("critic_loss", iv.mean(s.critic_loss)),
+            ("policy_loss", iv.mean(s.policy_loss)),
+            ("fraction_loss", iv.mean(s.fraction_loss)),
+            ("alpha_loss", iv.mean(s.alpha_loss)),
+            ("alpha", iv.mean(s.alpha)),
+            ("entropy", iv.mean(s.entropy)),
+            ("q_mean", iv.mean(s.q_mean)),
+            ("skipped_updates", Some(l.dsac.skipped as f64)),
+        ];
+        if self.cfg.dsac.state_aux_weight > 0.0 {
+            row.push(("state_loss", iv.mean(s.state_loss)));
+        }
+        self.metrics.log_optional(self.received_total, &row)?;
+        tracing::info!(
+            received = self.received_total,
+            updates = l.dsac.updates,
+            steps_per_s = format!("{:.1}", steps as f64 / secs),
+            update_ms = format!("{:.1}", per_update(iv.t_update).unwrap_or(0.0)),
+            refilling = l.refilling(),
+            terminal = l.replay.terminal_len(),
+            "learner"
+        );
+        let _ = self.heartbeat.send_copy(Heartbeat {
+            kind: process_kind::LEARNER,
+            pid: std::process::id(),
+            env_steps: self.received_total,
+            updates: l.dsac.updates,
+            version: l.dsac.updates - l.dsac.updates % self.cfg.runtime.weights_every,
+            rate: (steps as f64 / secs) as f32,
+            ..Heartbeat::default()
+        });
+        write_stats(&self.dir, l, self.received_total, "running")
+    }
+
+    /// When `runtime.max_updates` or `max_env_steps` is reached: checkpoint, and ask
+    /// the launcher to stop the run (the done marker); keep receiving, without
+    /// updates, until it stops the actors and then this process.
+    fn check_budget(&mut self) -> Result<()> {
+        let r = &self.cfg.runtime;
+        self.budget_spent = if r.max_updates > 0 && self.l.dsac.updates >= r.max_updates {
+            Some("max_updates")
+        } else if r.max_env_steps > 0 && self.received_total >= r.max_env_steps {
+            Some("max_env_steps")
+        } else {
+            None
+        };
+        if let Some(reason) = self.budget_spent {
+            tracing::info!(
+                reason,
+                updates = self.l.dsac.updates,
+                "budget spent; waiting for the launcher to stop the run"
+            );
+            self.save()?;
+            std::fs::write(self.dir.done_marker(), reason)?;
+        }
+        Ok(())
+    }
+}
+
+fn write_stats(dir: &RunDir, l: &Learner, received_total: u64, status: &str) -> Result<()> {
+    let tallies: Vec<_> = l
+        .tallies
+        .iter()
+        .map(|(&(actor, incarnation), t)| {
+            serde_json::json!({"actor": actor, "incarnation": incarnation, "records": t.records, "checksum": t.checksum, "gaps": t.gaps})
+        })
+        .collect();
+    dir.write_stats(
+        "learner",
+        &serde_json::json!({
+            "status": status,
+            "pid": std::process::id(),
+            "updates": l.dsac.updates,
+            "resumed_from_update": l.resumed_from,
+            "received_this_process": l.received,
+            "received_total": received_total,
+            "limiter": l.limiter,
+            "streams": tallies,
+        }),
+    )?;
+    Ok(())
+}
