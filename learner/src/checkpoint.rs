@@ -77,8 +77,19 @@ fn crc_of(path: &Path) -> Result<u32> {
     Ok(crc32fast::hash(&bytes))
 }
 
+/// Where the generation before the newest checkpoint in `dir` is kept: `<dir>.prev`.
+pub fn previous_generation(dir: &Path) -> PathBuf {
+    PathBuf::from(format!("{}.prev", dir.display()))
+}
+
 /// Write a checkpoint of `dsac` (plus optional limiter counters and free-form
-/// `extra`) to `dir`, replacing any checkpoint there.
+/// `extra`) to `dir`; the checkpoint that was there becomes the previous generation
+/// ([`previous_generation`]), and the one before that is dropped.
+///
+/// Order: the new one is written completely beside the others (`<dir>.tmp`), then the
+/// previous generation is dropped, the newest becomes the previous, the new one the
+/// newest. An interruption at any point leaves a loadable checkpoint in `dir` or in
+/// the previous generation ([`load_checkpoint_or_previous`] finds it).
 pub fn save_checkpoint(
     dir: &Path,
     dsac: &mut Dsac,
@@ -125,24 +136,49 @@ pub fn save_checkpoint(
     let path = tmp.join(STATE_FILE);
     let json = serde_json::to_string_pretty(&meta).map_err(|e| ck_err(&path, e.to_string()))?;
     fs::write(&path, json).map_err(|e| ck_err(&path, format!("cannot write: {e}")))?;
-    // Swap into place: old → .old, tmp → dir, drop .old.
-    let old = PathBuf::from(format!("{}.old", dir.display()));
-    if old.exists() {
-        fs::remove_dir_all(&old).map_err(|e| ck_err(&old, e.to_string()))?;
-    }
+    // Rotate: drop the previous generation, newest → previous, new → newest.
+    let prev = previous_generation(dir);
     if dir.exists() {
-        fs::rename(dir, &old).map_err(|e| ck_err(dir, format!("cannot move the previous checkpoint aside: {e}")))?;
+        if prev.exists() {
+            fs::remove_dir_all(&prev).map_err(|e| ck_err(&prev, e.to_string()))?;
+        }
+        fs::rename(dir, &prev).map_err(|e| ck_err(dir, format!("cannot keep the previous checkpoint: {e}")))?;
     }
     fs::rename(&tmp, dir).map_err(|e| ck_err(dir, format!("cannot move the new checkpoint into place: {e}")))?;
-    if old.exists() {
-        fs::remove_dir_all(&old).map_err(|e| ck_err(&old, e.to_string()))?;
-    }
     Ok(())
 }
 
-/// Whether `dir` holds a checkpoint (its state file) — what a resume looks for.
+/// [`load_checkpoint`] of the newest checkpoint in `dir`, or — when it is missing or
+/// damaged (a file whose checksum does not match, an interrupted write) — of the
+/// previous generation, with a warning naming what was wrong with the newest. Returns
+/// the state file and the folder that was loaded; an error names both generations'
+/// problems. `dsac` changes only when a load succeeds.
+pub fn load_checkpoint_or_previous(dir: &Path, dsac: &mut Dsac) -> Result<(CheckpointMeta, PathBuf)> {
+    let newest = match load_checkpoint(dir, dsac) {
+        Ok(meta) => return Ok((meta, dir.to_path_buf())),
+        Err(e) => e,
+    };
+    let prev = previous_generation(dir);
+    match load_checkpoint(&prev, dsac) {
+        Ok(meta) => {
+            tracing::warn!(
+                newest = %newest,
+                loaded = %prev.display(),
+                "the newest checkpoint cannot be loaded; resuming from the previous one"
+            );
+            Ok((meta, prev))
+        }
+        Err(previous) => Err(ck_err(
+            dir,
+            format!("neither the newest checkpoint ({newest}) nor the previous generation ({previous}) loads"),
+        )),
+    }
+}
+
+/// Whether `dir` or its previous generation holds a checkpoint (a state file) —
+/// what a resume looks for.
 pub fn checkpoint_exists(dir: &Path) -> bool {
-    dir.join(STATE_FILE).is_file()
+    dir.join(STATE_FILE).is_file() || previous_generation(dir).join(STATE_FILE).is_file()
 }
 
 /// Read the state file of the checkpoint in `dir` without loading weights.

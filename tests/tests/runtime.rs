@@ -5,7 +5,9 @@
 //! Checks: every step the actor sent reached the learner (count and checksum
 //! per actor incarnation, no sequence gaps); weights the learner published
 //! reached the actor and were used; tasks came from the curriculum service; an
-//! actor killed with SIGKILL is replaced and training continues; a stop writes a
+//! actor, the learner and the curriculum service killed with SIGKILL are each
+//! restarted (the learner from its checkpoint, the curriculum service from its state)
+//! and training continues; a stop writes a
 //! final checkpoint and a restart resumes from it; and that the loop learns: the
 //! state preset (two actors) opens a strict first-task gate within a fixed env-step
 //! budget. Only watchdogs — no timing assertions.
@@ -81,6 +83,17 @@ fn wait_within<T>(run_dir: &Path, what: &str, watchdog: Duration, mut cond: impl
         }
         std::thread::sleep(Duration::from_millis(200));
     }
+}
+
+/// The pid of the running `binary` whose command line names `run_dir`.
+fn pid_of(binary: &str, run_dir: &Path) -> Option<i32> {
+    let dir = run_dir.to_str()?;
+    std::fs::read_dir("/proc").ok()?.flatten().find_map(|e| {
+        let pid: i32 = e.file_name().to_str()?.parse().ok()?;
+        let cmdline = std::fs::read(e.path().join("cmdline")).ok()?;
+        let args: Vec<String> = cmdline.split(|&b| b == 0).map(|a| String::from_utf8_lossy(a).into_owned()).collect();
+        (args.first()?.ends_with(binary) && args.iter().any(|a| a == dir)).then_some(pid)
+    })
 }
 
 fn stop(child: &mut Child, run_dir: &Path) {
@@ -167,6 +180,29 @@ fn actor_learner_curriculum_run_restart_and_resume() {
     assert!(num(&resumed, "updates") > checkpointed);
     let log = std::fs::read_to_string(run_dir.join("logs/curriculum.log")).unwrap();
     assert!(log.contains("resumed curriculum state"), "the curriculum service resumed");
+
+    // Phase 4: SIGKILL the learner, then the curriculum service: the launcher restarts
+    // each from its checkpoint / saved state and training goes on.
+    let learner_pid = num(&resumed, "pid") as i32;
+    // SAFETY: the pid is the learner process our run started.
+    unsafe { libc::kill(learner_pid, libc::SIGKILL) };
+    let restarted = wait_for(&run_dir, "a restarted learner resuming and updating", || {
+        let l = stats(&run_dir, "learner")?;
+        let from = l.get("resumed_from_update")?.as_u64()?;
+        (num(&l, "pid") as i32 != learner_pid && num(&l, "updates") > from + 10).then_some(l)
+    });
+    let curriculum_pid = pid_of("pednav-curriculum", &run_dir).expect("the curriculum service runs");
+    // SAFETY: the pid is the curriculum service our run started.
+    unsafe { libc::kill(curriculum_pid, libc::SIGKILL) };
+    wait_for(&run_dir, "a restarted curriculum service resuming, and training going on", || {
+        let log = std::fs::read_to_string(run_dir.join("logs/curriculum.log")).ok()?;
+        let resumes = log.matches("resumed curriculum state").count();
+        let updates = num(&stats(&run_dir, "learner")?, "updates");
+        (resumes >= 2
+            && pid_of("pednav-curriculum", &run_dir)? != curriculum_pid
+            && updates > num(&restarted, "updates") + 20)
+            .then_some(())
+    });
     stop(&mut run, &run_dir);
     let after = stats(&run_dir, "curriculum").unwrap();
     assert!(num(&after, "episodes") >= num(&curriculum, "episodes"), "curriculum counters carried over");

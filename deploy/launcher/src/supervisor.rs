@@ -1,6 +1,10 @@
 //! The supervisor of one run's processes: starts the curriculum service, the learner
-//! and the actors, restarts an actor that dies (within a budget), prints the progress
-//! line from the heartbeats, and stops everything in order.
+//! and the actors, restarts any of them that dies — the learner from its last
+//! checkpoint (refilling its replay as on a resume), the curriculum service from its
+//! saved state, an actor afresh — within a budget of [`MAX_RESTARTS`] per
+//! [`RESTART_WINDOW`] each; a learner or curriculum service that stops sending
+//! heartbeats for `runtime.hang_secs` is treated as dead. It prints the progress line
+//! from the heartbeats and stops everything in order.
 //!
 //! Invariant: the actors are always stopped before the learner and the curriculum
 //! service, so the learner drains a stream nobody writes any more before its final
@@ -20,7 +24,7 @@ use pednav_runtime::ipc::HeartbeatSubscriber;
 use pednav_runtime::messages::{Heartbeat, process_kind};
 use pednav_runtime::{Ipc, RunConfig, RunDir, StopFlag, run_prefix};
 
-/// An actor that dies this many times within [`RESTART_WINDOW`] ends the run.
+/// A process that dies more than this many times within [`RESTART_WINDOW`] ends the run.
 const MAX_RESTARTS: usize = 5;
 /// The window of [`MAX_RESTARTS`].
 const RESTART_WINDOW: Duration = Duration::from_secs(120);
@@ -34,9 +38,34 @@ struct Proc {
     child: Option<Child>,
     restarts: VecDeque<Instant>,
     total_restarts: u32,
+    /// Its heartbeats' (kind, id).
+    heartbeat: (u32, u32),
+    /// Whether silence means a hang (the learner and the curriculum service; an actor
+    /// legitimately stays silent while it waits for a restarting learner).
+    watch_hang: bool,
 }
 
 impl Proc {
+    /// Count a death against the restart budget; an error (with the cause from the
+    /// log) when the budget is spent.
+    fn count_restart(&mut self, status: &str) -> Result<()> {
+        self.restarts.push_back(Instant::now());
+        while self.restarts.front().is_some_and(|t| t.elapsed() > RESTART_WINDOW) {
+            self.restarts.pop_front();
+        }
+        if self.restarts.len() > MAX_RESTARTS {
+            bail!(
+                "{} died {} times within {} s ({status}); from its log:\n{}",
+                self.name,
+                MAX_RESTARTS + 1,
+                RESTART_WINDOW.as_secs(),
+                self.log_tail()
+            );
+        }
+        self.total_restarts += 1;
+        Ok(())
+    }
+
     fn start(&mut self) -> Result<()> {
         let log = OpenOptions::new()
             .create(true)
@@ -65,6 +94,15 @@ impl Proc {
         }
     }
 
+    /// SIGKILL it and reap it.
+    fn kill(&mut self) {
+        self.signal(libc::SIGKILL);
+        if let Some(c) = self.child.as_mut() {
+            let _ = c.wait();
+        }
+        self.child = None;
+    }
+
     /// Exit status if it has exited (and forget the child).
     fn exited(&mut self) -> Option<std::process::ExitStatus> {
         let status = self.child.as_mut().and_then(|c| c.try_wait().ok().flatten());
@@ -78,10 +116,21 @@ impl Proc {
         self.child.is_some()
     }
 
+    /// Why the process ended, from its log ([`exit_cause`]).
     fn log_tail(&self) -> String {
-        let text = std::fs::read_to_string(&self.log).unwrap_or_default();
-        let lines: Vec<&str> = text.lines().collect();
-        lines[lines.len().saturating_sub(8)..].join("\n")
+        exit_cause(&std::fs::read_to_string(&self.log).unwrap_or_default())
+    }
+}
+
+/// The cause of a process's exit as its log tells it: the error a pednav binary
+/// printed last (`Error: …` and its `Caused by:` chain, as `anyhow` writes it when
+/// `main` returns an error) with the log line before it for context; a log without
+/// one (a crash, a signal) gives its last 8 lines.
+pub fn exit_cause(log: &str) -> String {
+    let lines: Vec<&str> = log.lines().collect();
+    match lines.iter().rposition(|l| l.starts_with("Error: ")) {
+        Some(i) => lines[i.saturating_sub(1)..].join("\n"),
+        None => lines[lines.len().saturating_sub(8)..].join("\n"),
     }
 }
 
@@ -138,6 +187,10 @@ pub struct Supervisor {
     actors: Vec<Proc>,
     /// The newest heartbeat of each (kind, id).
     latest: BTreeMap<(u32, u32), Heartbeat>,
+    /// When each (kind, id) last sent one (cleared when its process restarts).
+    last_beat: BTreeMap<(u32, u32), Instant>,
+    /// `runtime.hang_secs`.
+    hang: Duration,
     started: Instant,
     last_line: Instant,
     tty: bool,
@@ -156,7 +209,7 @@ impl Supervisor {
         )?;
         let heartbeats = ipc.heartbeat_subscriber()?;
         let rd = dir.root().display().to_string();
-        let mk = |name: String, bin: &str, args: Vec<String>| Proc {
+        let mk = |name: String, bin: &str, args: Vec<String>, heartbeat: (u32, u32)| Proc {
             log: dir.logs().join(format!("{name}.log")),
             name,
             binary: plan.bins.join(bin),
@@ -164,14 +217,20 @@ impl Supervisor {
             child: None,
             restarts: VecDeque::new(),
             total_restarts: 0,
+            heartbeat,
+            watch_hang: heartbeat.0 != process_kind::ACTOR,
         };
-        let mut curriculum =
-            mk("curriculum".into(), "pednav-curriculum", vec!["serve".into(), "--run-dir".into(), rd.clone()]);
+        let mut curriculum = mk(
+            "curriculum".into(),
+            "pednav-curriculum",
+            vec!["serve".into(), "--run-dir".into(), rd.clone()],
+            (process_kind::CURRICULUM, 0),
+        );
         let mut learner_args = vec!["--run-dir".into(), rd.clone(), "--device".into(), plan.learner_device.to_string()];
         if let Some(t) = plan.learner_threads {
             learner_args.extend(["--threads".into(), t.to_string()]);
         }
-        let mut learner = mk("learner".into(), "pednav-learner", learner_args);
+        let mut learner = mk("learner".into(), "pednav-learner", learner_args, (process_kind::LEARNER, 0));
         let mut actors: Vec<Proc> = (0..plan.actors)
             .map(|k| {
                 let mut args = vec![
@@ -185,7 +244,7 @@ impl Supervisor {
                 if let Some(m) = plan.envs {
                     args.extend(["--envs".into(), m.to_string()]);
                 }
-                mk(format!("actor-{k}"), "pednav-actor", args)
+                mk(format!("actor-{k}"), "pednav-actor", args, (process_kind::ACTOR, k))
             })
             .collect();
         curriculum.start()?;
@@ -202,6 +261,8 @@ impl Supervisor {
             learner,
             actors,
             latest: BTreeMap::new(),
+            last_beat: BTreeMap::new(),
+            hang: Duration::from_secs_f64(cfg.runtime.hang_secs),
             started: Instant::now(),
             last_line: Instant::now(),
             tty: std::io::stderr().is_terminal(),
@@ -230,40 +291,38 @@ impl Supervisor {
         }
     }
 
-    /// One look at the processes: heartbeats, dead actors restarted, the learner and
-    /// the curriculum service alive, the budget marker, the progress line. `false`
-    /// when the run is over; an error when it failed.
+    /// One look at the processes: heartbeats, dead or hung processes restarted, the
+    /// budget marker, the progress line. `false` when the run is over; an error when it
+    /// failed (a process out of restarts).
     pub fn step(&mut self) -> Result<bool> {
         while let Ok(Some(h)) = self.heartbeats.receive() {
             self.latest.insert((h.kind, h.id), *h);
+            self.last_beat.insert((h.kind, h.id), Instant::now());
         }
-        for a in self.actors.iter_mut() {
-            let Some(status) = a.exited() else { continue };
-            if self.stop.is_set() {
+        let Supervisor { learner, curriculum, actors, last_beat, ipc, stop, hang, .. } = self;
+        for p in [learner, curriculum].into_iter().chain(actors.iter_mut()) {
+            let status = match p.exited() {
+                Some(status) => status.to_string(),
+                None if p.watch_hang && last_beat.get(&p.heartbeat).is_some_and(|t| t.elapsed() > *hang) => {
+                    eprintln!("\npednav: {} sent no heartbeat for {} s: killing it", p.name, hang.as_secs());
+                    p.kill();
+                    format!("hung: no heartbeat for {} s", hang.as_secs())
+                }
+                None => continue,
+            };
+            if stop.is_set() {
                 return Ok(false);
             }
-            a.restarts.push_back(Instant::now());
-            while a.restarts.front().is_some_and(|t| t.elapsed() > RESTART_WINDOW) {
-                a.restarts.pop_front();
-            }
-            if a.restarts.len() > MAX_RESTARTS {
-                bail!(
-                    "{} died {} times within {} s ({status}); last log lines:\n{}",
-                    a.name,
-                    MAX_RESTARTS + 1,
-                    RESTART_WINDOW.as_secs(),
-                    a.log_tail()
-                );
-            }
-            a.total_restarts += 1;
-            eprintln!("\npednav: {} exited ({status}); restarting it (restart {})", a.name, a.total_restarts);
-            self.ipc.cleanup_dead_nodes();
-            a.start()?;
-        }
-        for p in [&mut self.learner, &mut self.curriculum] {
-            if let Some(status) = p.exited() {
-                bail!("{} exited ({status}); last log lines:\n{}", p.name, p.log_tail());
-            }
+            p.count_restart(&status)?;
+            let from = match p.heartbeat.0 {
+                process_kind::LEARNER => " from its last checkpoint",
+                process_kind::CURRICULUM => " from its saved state",
+                _ => "",
+            };
+            eprintln!("\npednav: {} exited ({status}); restarting it{from} (restart {})", p.name, p.total_restarts);
+            last_beat.remove(&p.heartbeat);
+            ipc.cleanup_dead_nodes();
+            p.start()?;
         }
         if let Ok(reason) = std::fs::read_to_string(self.dir.done_marker()) {
             eprintln!("\npednav: the learner reached its budget ({reason})");
@@ -272,7 +331,8 @@ impl Supervisor {
         let every = if self.tty { Duration::from_secs(1) } else { Duration::from_secs(30) };
         if self.last_line.elapsed() >= every {
             self.last_line = Instant::now();
-            let line = progress_line(self.started.elapsed(), &self.latest, &self.actors);
+            let restarts = self.learner.total_restarts + self.curriculum.total_restarts;
+            let line = progress_line(self.started.elapsed(), &self.latest, &self.actors, restarts);
             if self.tty {
                 eprint!("\r\x1b[2K{line}");
             } else {
@@ -293,13 +353,20 @@ impl Supervisor {
     }
 }
 
-fn progress_line(elapsed: Duration, latest: &BTreeMap<(u32, u32), Heartbeat>, actors: &[Proc]) -> String {
+/// The launcher's progress line; `service_restarts` counts the learner's and the
+/// curriculum service's restarts, added to the actors'.
+fn progress_line(
+    elapsed: Duration,
+    latest: &BTreeMap<(u32, u32), Heartbeat>,
+    actors: &[Proc],
+    service_restarts: u32,
+) -> String {
     let s = elapsed.as_secs();
     let learner = latest.get(&(process_kind::LEARNER, 0));
     let curriculum = latest.get(&(process_kind::CURRICULUM, 0));
     let actor_rate: f32 = latest.iter().filter(|(k, _)| k.0 == process_kind::ACTOR).map(|(_, h)| h.rate).sum();
     let alive = actors.iter().filter(|a| a.running()).count();
-    let restarts: u32 = actors.iter().map(|a| a.total_restarts).sum();
+    let restarts: u32 = actors.iter().map(|a| a.total_restarts).sum::<u32>() + service_restarts;
     format!(
         "[{:02}:{:02}:{:02}] steps {} ({:.0}/s) | updates {} | episodes {} return {:.1} | {} t_c {} | actors {}/{} restarts {}",
         s / 3600,
@@ -316,4 +383,34 @@ fn progress_line(elapsed: Duration, latest: &BTreeMap<(u32, u32), Heartbeat>, ac
         actors.len(),
         restarts
     )
+}
+
+#[cfg(test)]
+mod tests {
+    use super::exit_cause;
+
+    /// A failed process's log gives its error, the `Caused by:` chain and the line
+    /// before it — not the progress lines logged long before; a log without an error
+    /// gives its tail.
+    #[test]
+    fn the_exit_cause_is_the_error_and_its_chain() {
+        let mut log: Vec<String> =
+            (0..20).map(|i| format!("2026-12-01T10:00:{i:02}Z  INFO learner received={i}")).collect();
+        log.push("2026-12-01T10:00:21Z  INFO resuming".into());
+        log.extend(
+            [
+                "Error: resuming from runs/x/checkpoints/learner",
+                "",
+                "Caused by:",
+                "    checkpoint runs/x/checkpoints/learner/policy.safetensors: checksum mismatch (file 1a2b, state file 3c4d): the file is corrupted",
+            ]
+            .map(String::from),
+        );
+        let cause = exit_cause(&log.join("\n"));
+        assert!(cause.starts_with("2026-12-01T10:00:21Z  INFO resuming\nError: resuming"), "{cause}");
+        assert!(cause.contains("checksum mismatch") && !cause.contains("received=19"), "{cause}");
+        let plain: String = (0..20).map(|i| format!("line {i}\n")).collect();
+        let tail = exit_cause(&plain);
+        assert!(tail.starts_with("line 12") && tail.ends_with("line 19"), "{tail}");
+    }
 }

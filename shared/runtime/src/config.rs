@@ -61,6 +61,10 @@ pub struct RuntimeConfig {
     /// Where the actors run policy inference ("cpu", "cuda", "cuda:N"; the simulator
     /// renders on the CPU either way); `--actor-device` on launch overrides it.
     pub actor_device: DeviceSpec,
+    /// A learner or curriculum service that sent no heartbeat for this many seconds
+    /// (after its first; they send one every `metrics_every_secs`) is treated as dead:
+    /// the launcher kills it and restarts it from its checkpoint or state.
+    pub hang_secs: f64,
 }
 
 impl Default for RuntimeConfig {
@@ -80,6 +84,7 @@ impl Default for RuntimeConfig {
             max_env_steps: 0,
             device: DeviceSpec::Cpu,
             actor_device: DeviceSpec::Cpu,
+            hang_secs: 600.0,
         }
     }
 }
@@ -249,6 +254,16 @@ impl RunConfig {
                 return bad(field, v.to_string(), "must be a positive number of seconds");
             }
         }
+        if !(r.hang_secs.is_finite() && r.hang_secs >= 3.0 * r.metrics_every_secs) {
+            return bad(
+                "runtime.hang_secs",
+                r.hang_secs.to_string(),
+                &format!(
+                    "must be at least 3 × runtime.metrics_every_secs = {} (heartbeats come that often)",
+                    3.0 * r.metrics_every_secs
+                ),
+            );
+        }
         if r.step_buffer < 16 {
             return bad("runtime.step_buffer", r.step_buffer.to_string(), "must be at least 16 records");
         }
@@ -387,6 +402,10 @@ mod tests {
         cfg.dsac.state_aux_weight = -1.0;
         let e = cfg.validate("x").unwrap_err().to_string();
         assert!(e.contains("state_aux_weight") && e.contains("-1"), "{e}");
+        let mut cfg = RunConfig::default();
+        cfg.runtime.hang_secs = 20.0;
+        let e = cfg.validate("x").unwrap_err().to_string();
+        assert!(e.contains("runtime.hang_secs") && e.contains("metrics_every_secs = 30"), "{e}");
         let mut cfg = RunConfig::default();
         cfg.dsac.random_shift = 22;
         let e = cfg.validate("x").unwrap_err().to_string();

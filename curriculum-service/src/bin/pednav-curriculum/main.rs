@@ -77,7 +77,7 @@ fn draw(run_dir: &Path, state: Option<&Path>, out: &Path, cell: f32) -> Result<(
     let cfg = dir.load_config()?;
     let scene = cfg.scene()?;
     let path = state.map_or_else(|| dir.curriculum_state(), Path::to_path_buf);
-    if !path.exists() {
+    if !pednav_curriculum::ServiceState::exists(&path) {
         bail!("{} does not exist: the curriculum service saves its state while a run goes on", path.display());
     }
     let (mut curriculum, _) = service::load_curriculum(&path, &cfg, scene.clone())?;

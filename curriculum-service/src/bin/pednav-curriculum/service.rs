@@ -332,13 +332,15 @@ impl CurriculumService {
 }
 
 /// The run's curriculum, restored from the saved state at `path` when there is one.
+/// A damaged or missing newest state falls back to the previous generation
+/// ([`ServiceState::load_or_previous`]).
 pub fn load_curriculum(path: &Path, cfg: &RunConfig, scene: Scene) -> Result<(Curriculum, Option<ServiceState>)> {
-    if !path.exists() {
+    if !ServiceState::exists(path) {
         return Ok((Curriculum::new(cfg.curriculum.clone(), scene, cfg.curriculum_seed())?, None));
     }
-    let saved = ServiceState::load(path)?;
+    let (saved, read) = ServiceState::load_or_previous(path)?;
     let curriculum = pednav_curriculum::classify::restore(&cfg.curriculum, scene, cfg.curriculum_seed(), &saved)
-        .with_context(|| format!("restoring {}", path.display()))?;
+        .with_context(|| format!("restoring {}", read.display()))?;
     Ok((curriculum, Some(saved)))
 }
 

@@ -14,7 +14,7 @@ use std::time::{Duration, Instant};
 use anyhow::{Context, Result};
 use candle_core::Device;
 use pednav_learner::{
-    Dsac, DualReplay, Frame, FrameKind, RateLimiter, Step, UpdateStats, checkpoint_exists, load_checkpoint,
+    Dsac, DualReplay, Frame, FrameKind, RateLimiter, Step, UpdateStats, checkpoint_exists, load_checkpoint_or_previous,
     save_checkpoint,
 };
 use pednav_runtime::ipc::{HeartbeatPublisher, StepSample, StepSubscriber, receive_step_round};
@@ -201,8 +201,8 @@ impl LearnerProcess {
         let mut received_total = 0u64;
         let ckpt = dir.learner_checkpoint();
         if checkpoint_exists(&ckpt) {
-            let meta =
-                load_checkpoint(&ckpt, &mut dsac).with_context(|| format!("resuming from {}", ckpt.display()))?;
+            let (meta, loaded) = load_checkpoint_or_previous(&ckpt, &mut dsac)
+                .with_context(|| format!("resuming from {}", ckpt.display()))?;
             if let Some(l) = meta.limiter {
                 limiter = l;
             }
@@ -210,13 +210,18 @@ impl LearnerProcess {
                 format!(
                     "{}: the learner process's state (`extra` in state.json: the batch sampler's RNG and the \
                      steps received) is missing or damaged",
-                    ckpt.display()
+                    loaded.display()
                 )
             })?;
             sample_rng = process.sample_rng;
             received_total = process.received_total;
             resumed_from = Some(dsac.updates);
-            tracing::info!(updates = dsac.updates, inserted = limiter.inserted, "resumed from checkpoint");
+            tracing::info!(
+                updates = dsac.updates,
+                inserted = limiter.inserted,
+                from = %loaded.display(),
+                "resumed from checkpoint"
+            );
         }
         let kind = cfg.frame_kind();
         let mut replay = DualReplay::new(&cfg.replay, kind, cfg.nets.history, device)?;
