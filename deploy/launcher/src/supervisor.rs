@@ -149,11 +149,7 @@ fn stop_all(procs: &mut [&mut Proc], grace: Duration) {
         if start.elapsed() > grace {
             for p in procs.iter_mut().filter(|p| p.running()) {
                 tracing::warn!(process = %p.name, "did not stop within {grace:?}; killing it");
-                p.signal(libc::SIGKILL);
-                if let Some(c) = p.child.as_mut() {
-                    let _ = c.wait();
-                }
-                p.child = None;
+                p.kill();
             }
         }
         std::thread::sleep(Duration::from_millis(50));

@@ -53,6 +53,8 @@ struct Learner {
     received: u64,
     tallies: BTreeMap<(u32, u32), StreamTally>,
     kind: FrameKind,
+    /// Bytes of one record's observation (`RunConfig::observation_bytes`).
+    record_bytes: usize,
     refill_until: u64,
     resumed_from: Option<u64>,
 }
@@ -61,10 +63,7 @@ impl Learner {
     /// Take one step record into the replay. A record of the wrong size (an actor
     /// built from another config) is logged and dropped, never stored.
     fn take(&mut self, h: &StepHeader, bytes: &[u8]) -> Result<()> {
-        let expected = match self.kind {
-            FrameKind::Pixels { size } => size * size,
-            FrameKind::State { dim } => state_payload::bytes(dim),
-        };
+        let expected = self.record_bytes;
         if bytes.len() != expected {
             tracing::error!(actor = h.actor, got = bytes.len(), expected, "step record of the wrong size dropped");
             return Ok(());
@@ -236,6 +235,7 @@ impl LearnerProcess {
             received: 0,
             tallies: BTreeMap::new(),
             kind,
+            record_bytes: cfg.observation_bytes(),
             refill_until: if resumed_from.is_some() { cfg.dsac.warmup } else { 0 },
             resumed_from,
         };
