@@ -13,14 +13,16 @@ use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result, bail};
-use candle_core::{Device, Tensor};
-use pednav_nets::{DsacNets, Obs, PolicyStream};
+use candle_core::Device;
+use pednav_nets::DsacNets;
+use pednav_policy::{ActingPolicy, Sampling};
 use pednav_runtime::channels::{EpisodeReporter, Observation, StepWriter, TaskRequester};
 use pednav_runtime::ipc::HeartbeatPublisher;
 use pednav_runtime::messages::{EpisodeHeader, EpisodePoint, Heartbeat, StepHeader, process_kind, step_flags};
 use pednav_runtime::weights::WeightsClient;
 use pednav_runtime::{ActorPolicy, Ipc, Metrics, RunConfig, RunDir, StopFlag, run_prefix};
-use pednav_sim::{BackendChoice, DiscountedReturn, ObsMode, Pose, STATE_OBS_DIM, SimWorld, VecEnv};
+use pednav_sim::policy::RandomPolicy;
+use pednav_sim::{BackendChoice, DiscountedReturn, ObsMode, Policy, Pose, STATE_OBS_DIM, SimWorld, VecEnv};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
@@ -28,6 +30,8 @@ use rand_chacha::ChaCha8Rng;
 struct Episode {
     id: u64,
     task_id: u64,
+    /// The seed the environment and the policy's noise were started with.
+    seed: u64,
     category: u32,
     step: u32,
     points: Vec<EpisodePoint>,
@@ -99,9 +103,10 @@ pub struct ActorProcess {
     weights: WeightsClient,
     heartbeat: HeartbeatPublisher,
     metrics: Metrics,
-    device: Device,
-    nets: DsacNets,
-    stream: PolicyStream,
+    /// The learned policy; it receives every newer version of the weights.
+    learned: ActingPolicy,
+    /// The random walk, when it acts instead (`runtime.policy = "random"`).
+    random: Option<RandomPolicy>,
     versions_used: BTreeSet<u64>,
     rng: ChaCha8Rng,
     counters: Counters,
@@ -144,7 +149,10 @@ impl ActorProcess {
         let metrics = Metrics::open(&dir.metrics(), &dir.tb(), &name)?;
         // The learner builds its networks from the run seed too: version 0 is the same here and there.
         let nets = DsacNets::new(&cfg.nets, &opts.device, cfg.seed)?;
-        let stream = PolicyStream::new(&cfg.nets, m, &opts.device);
+        let learned = ActingPolicy::new(nets, &cfg.nets, m, Sampling::Sample);
+        let mut rng = ChaCha8Rng::seed_from_u64(seed);
+        let random = (cfg.runtime.policy == ActorPolicy::Random)
+            .then(|| RandomPolicy::from_rng(ChaCha8Rng::seed_from_u64(rng.random())));
         Ok(ActorProcess {
             pixels: cfg.sim.obs_mode == ObsMode::Pixels,
             send_state: cfg.sim.obs_mode != ObsMode::Pixels || cfg.dsac.state_aux_weight > 0.0,
@@ -159,11 +167,10 @@ impl ActorProcess {
             weights,
             heartbeat,
             metrics,
-            device: opts.device,
-            nets,
-            stream,
+            learned,
+            random,
             versions_used: BTreeSet::new(),
-            rng: ChaCha8Rng::seed_from_u64(seed),
+            rng,
             counters: Counters::default(),
             episodes: (0..m).map(|_| None).collect(),
             next_episode: 0,
@@ -197,8 +204,7 @@ impl ActorProcess {
         if !self.start_episodes()? {
             return Ok(false);
         }
-        if let Some(new) = self.weights.refresh(&self.nets)? {
-            self.stream.invalidate();
+        if let Some(new) = self.weights.refresh(&mut self.learned)? {
             tracing::debug!(version = new.version, latency_ms = new.latency_ms, "new weights");
         }
         let t0 = Instant::now();
@@ -224,13 +230,15 @@ impl ActorProcess {
             self.counters.tasks += 1;
             self.counters.last_task_id = task.task_id;
             let pose = Pose { x: task.x, y: task.y, yaw: task.yaw };
+            let seed = self.rng.random();
             self.envs
-                .reset(e, pose, self.rng.random())
+                .reset(e, pose, seed)
                 .with_context(|| format!("the curriculum service proposed an invalid task {pose:?}"))?;
             self.next_episode += 1;
             self.episodes[e] = Some(Episode {
                 id: self.next_episode,
                 task_id: task.task_id,
+                seed,
                 category: task.category,
                 step: 0,
                 points: vec![EpisodePoint { x: pose.x, y: pose.y, yaw: pose.yaw, reward: 0.0 }],
@@ -256,9 +264,11 @@ impl ActorProcess {
             let Some(bytes) = self.steps.send(header, observation(frames.as_ref(), &states, e))? else {
                 return Ok(false);
             };
-            if self.pixels {
-                self.stream.reset(e, &bytes)?;
-            }
+            let policy: &mut dyn Policy = match &mut self.random {
+                Some(random) => random,
+                None => &mut self.learned,
+            };
+            policy.begin(e, ep.seed, self.pixels.then_some(&bytes[..])).map_err(anyhow::Error::from_boxed)?;
             self.counters.sent(&header, &bytes);
         }
         drop(frames);
@@ -274,32 +284,14 @@ impl ActorProcess {
     }
 
     fn choose_actions(&mut self) -> Result<()> {
-        let m = self.envs.num_envs();
-        match self.cfg.runtime.policy {
-            ActorPolicy::Random => {
-                for a in self.actions.iter_mut() {
-                    *a = std::array::from_fn(|_| self.rng.random_range(-1.0..1.0));
-                }
-            }
-            ActorPolicy::Learned => {
-                let features = if self.pixels {
-                    let all: Vec<usize> = (0..m).collect();
-                    self.stream.features(self.nets.acting_encoder(), &all)?
-                } else {
-                    let s: Vec<f32> = self.states().into_iter().flatten().collect();
-                    let obs = Obs::State(Tensor::from_vec(s, (m, self.cfg.nets.state_dim), &self.device)?);
-                    self.nets.acting_encoder().encode(&obs)?
-                };
-                let dist = self.nets.policy.head(&features)?;
-                let eps = pednav_nets::heads::standard_normal(&mut self.rng, m, &self.device)?;
-                let a = dist.sample(&eps)?.action.to_vec2::<f32>()?;
-                for (dst, src) in self.actions.iter_mut().zip(a) {
-                    *dst = [src[0], src[1], src[2]];
-                }
+        match &mut self.random {
+            Some(random) => random.act(&self.envs, &mut self.actions),
+            None => {
                 self.versions_used.insert(self.weights.version());
+                self.learned.act(&self.envs, &mut self.actions)
             }
         }
-        Ok(())
+        .map_err(anyhow::Error::from_boxed)
     }
 
     /// Step and render every environment, send each step, report finished episodes.
@@ -340,8 +332,14 @@ impl ActorProcess {
             let Some(bytes) = self.steps.send(header, observation(frames.as_ref(), &states, e))? else {
                 return Ok(false);
             };
-            if self.pixels && !(t.terminated || t.truncated) {
-                self.stream.push(e, self.actions[e], t.reward, &bytes)?;
+            if !(t.terminated || t.truncated) {
+                let policy: &mut dyn Policy = match &mut self.random {
+                    Some(random) => random,
+                    None => &mut self.learned,
+                };
+                policy
+                    .observe(e, self.actions[e], t.reward, self.pixels.then_some(&bytes[..]))
+                    .map_err(anyhow::Error::from_boxed)?;
             }
             self.counters.sent(&header, &bytes);
             ep.points.push(EpisodePoint { x: t.pose.x, y: t.pose.y, yaw: t.pose.yaw, reward: t.reward });

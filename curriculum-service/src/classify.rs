@@ -2,111 +2,22 @@
 //! every cell of a grid over the region, with the start yaw facing the goal,
 //! classified by the task-value net into easy / frontier / hard / neither with
 //! the bands of the current t_c; μ and σ fitted on a fresh set of candidate
-//! tasks, as the scheduler does. Also the saved state of the service process
-//! ([`ServiceState`]), so snapshots can be drawn after the fact.
+//! tasks, as the scheduler does; and the curriculum restored from a saved state of
+//! the service process ([`ServiceState`]), so snapshots can be drawn after the fact.
 
 use std::collections::BTreeMap;
-use std::path::{Path, PathBuf};
 
 use pednav_sim::draw::{MapCanvas, draw_map};
 use pednav_sim::{Pose, RegionMap, Scene};
 use rand::SeedableRng;
-use serde::{Deserialize, Serialize};
 
 use crate::config::CurriculumConfig;
-use crate::curriculum::{Curriculum, CurriculumState};
-use crate::error::{CurriculumError, Result};
+use crate::curriculum::Curriculum;
+use crate::error::Result;
 use crate::filter::{Category, Fit, bands};
 use crate::returns::task_features;
 use crate::sampler::TaskSampler;
-
-/// What the curriculum service saves (`checkpoints/curriculum.json` and the snapshots).
-#[derive(Debug, Clone, Serialize, Deserialize)]
-pub struct ServiceState {
-    /// The curriculum itself.
-    pub curriculum: CurriculumState,
-    /// The next task id to hand out.
-    pub next_task_id: u64,
-    /// Tasks proposed per category name.
-    pub proposed: BTreeMap<String, u64>,
-    /// Decision steps of all reported episodes.
-    #[serde(default)]
-    pub decision_steps: u64,
-}
-
-impl ServiceState {
-    /// Read a saved state, verifying its checksum line (a state written before states
-    /// carried one is read as it is).
-    pub fn load(path: &Path) -> Result<ServiceState> {
-        let bad = |m: String| CurriculumError::Report(format!("{}: {m}", path.display()));
-        let bytes = std::fs::read(path).map_err(|e| bad(format!("cannot read: {e}")))?;
-        let json = match bytes.windows(CRC_TAG.len()).rposition(|w| w == CRC_TAG) {
-            Some(at) => {
-                let (json, line) = (&bytes[..at], &bytes[at + CRC_TAG.len()..]);
-                let want = std::str::from_utf8(line).ok().and_then(|l| u32::from_str_radix(l.trim(), 16).ok());
-                let got = crc32fast::hash(json);
-                if want != Some(got) {
-                    return Err(bad(format!(
-                        "checksum mismatch (file {got:08x}, recorded {want:08x?}): the file is damaged"
-                    )));
-                }
-                json
-            }
-            None => &bytes[..],
-        };
-        serde_json::from_slice(json).map_err(|e| bad(format!("not a curriculum state: {e}")))
-    }
-
-    /// Write it with a CRC-32 line, atomically; the state that was at `path` becomes
-    /// the previous generation ([`ServiceState::previous_generation`]). An interruption
-    /// at any point leaves a loadable state at `path` or in the previous generation.
-    pub fn save(&self, path: &Path) -> Result<()> {
-        let tmp = path.with_extension("json.tmp");
-        let io = |e: std::io::Error| CurriculumError::Report(format!("{}: {e}", path.display()));
-        let mut bytes = serde_json::to_vec(self).expect("state serialises");
-        let crc = crc32fast::hash(&bytes);
-        bytes.extend_from_slice(CRC_TAG);
-        bytes.extend_from_slice(format!("{crc:08x}\n").as_bytes());
-        std::fs::write(&tmp, bytes).map_err(io)?;
-        if path.exists() {
-            std::fs::rename(path, Self::previous_generation(path)).map_err(io)?;
-        }
-        std::fs::rename(&tmp, path).map_err(io)
-    }
-
-    /// Where the state before the newest one at `path` is kept (`<name>.prev.json`).
-    pub fn previous_generation(path: &Path) -> PathBuf {
-        path.with_extension("prev.json")
-    }
-
-    /// Whether `path` or its previous generation holds a state.
-    pub fn exists(path: &Path) -> bool {
-        path.exists() || Self::previous_generation(path).exists()
-    }
-
-    /// The newest state at `path`, or — when it is missing or damaged — the previous
-    /// generation, with a warning naming what was wrong with the newest; returns the
-    /// file read. An error names both generations' problems.
-    pub fn load_or_previous(path: &Path) -> Result<(ServiceState, PathBuf)> {
-        let newest = match Self::load(path) {
-            Ok(s) => return Ok((s, path.to_path_buf())),
-            Err(e) => e,
-        };
-        let prev = Self::previous_generation(path);
-        match Self::load(&prev) {
-            Ok(s) => {
-                tracing::warn!(newest = %newest, loaded = %prev.display(), "the newest curriculum state cannot be read; resuming from the previous one");
-                Ok((s, prev))
-            }
-            Err(previous) => Err(CurriculumError::Report(format!(
-                "neither the newest state ({newest}) nor the previous generation ({previous}) loads"
-            ))),
-        }
-    }
-}
-
-/// What precedes the checksum of a saved state (after its JSON).
-const CRC_TAG: &[u8] = b"\ncrc32 ";
+use crate::state_file::ServiceState;
 
 /// Class of one grid cell.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord)]

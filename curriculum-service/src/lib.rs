@@ -11,9 +11,10 @@
 //! `pednav-nets`): f^r trained on the augmented tasks of every step (NavACL⁺) or f^s on
 //! initial tasks (NavACL), every Δ_ep episodes.
 //!
-//! [`classify`] draws the task classification over the region (Fig. 4) and holds
-//! the service's saved state; the service process itself is the `pednav-curriculum`
-//! binary (`src/bin/pednav-curriculum/`).
+//! [`classify`] draws the task classification over the region (Fig. 4);
+//! [`state_file`] holds the service's saved state (checksummed, two generations);
+//! the service process itself is the `pednav-curriculum` binary
+//! (`src/bin/pednav-curriculum/`).
 
 #![warn(missing_docs)]
 
@@ -27,8 +28,9 @@ pub mod net;
 pub mod returns;
 pub mod sampler;
 pub mod scheduler;
+pub mod state_file;
 
-pub use classify::{CellClass, Classification, ServiceState, classify_region};
+pub use classify::{CellClass, Classification, classify_region};
 pub use config::{CurriculumConfig, Variant};
 pub use curriculum::{Curriculum, CurriculumState, EpisodeOutcome, ReportSummary};
 pub use error::{CurriculumError, Result};
@@ -38,3 +40,4 @@ pub use net::{NetState, Target, TaskNetConfig, TaskValueNet};
 pub use returns::{discounted_returns, task_features};
 pub use sampler::TaskSampler;
 pub use scheduler::{Proposal, ReturnPredictor, SchedulerState, TaskScheduler};
+pub use state_file::ServiceState;

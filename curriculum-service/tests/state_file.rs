@@ -1,7 +1,10 @@
 //! The curriculum service's saved state on disk: a checksum line that catches
-//! damage, the previous generation kept by every save, and the fallback to it.
+//! damage, the previous generation kept by every save, the fallback to it, and a
+//! save interrupted after any of its steps (issue 18).
 
 use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+use std::sync::{Arc, Mutex};
 
 use pednav_curriculum::{Curriculum, CurriculumConfig, ServiceState};
 use pednav_sim::Scene;
@@ -51,4 +54,187 @@ fn a_damaged_state_is_refused_and_the_previous_generation_loads() {
     let err = ServiceState::load_or_previous(&path).unwrap_err().to_string();
     assert!(err.contains("neither") && err.contains("prev.json"), "{err}");
     let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// The start states of the interrupted save: what is on disk (states labelled by
+/// their next task id), and which states a resume may load once a save of 30 has been
+/// stopped anywhere.
+const STARTS: [(&str, &[u64]); 3] =
+    [("one state (10)", &[10, 30]), ("two generations (10, 20)", &[20, 30]), ("the newest (20) damaged", &[10, 30])];
+
+fn set_up(start: usize, path: &Path) {
+    state(10).save(path).unwrap();
+    if start >= 1 {
+        state(20).save(path).unwrap();
+    }
+    if start == 2 {
+        damage(path, "flip 4 bytes");
+    }
+}
+
+/// The state a resume loads, and from which file.
+fn resume(path: &Path) -> (u64, PathBuf) {
+    let (s, read) = ServiceState::load_or_previous(path).unwrap_or_else(|e| panic!("cannot resume: {e}"));
+    (s.next_task_id, read)
+}
+
+/// A save stopped after each of its filesystem steps in turn (the state a kill there
+/// leaves): the resume finds a state and loads the one that was there or the new one;
+/// the next save (over a part-written `.json.tmp` too) works and keeps what was loaded
+/// as the previous generation. From a damaged newest, the good previous state is
+/// never lost.
+#[test]
+fn a_save_stopped_after_any_step_resumes_from_a_whole_state() {
+    let root = std::env::temp_dir().join(format!("pednav-curriculum-steps-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&root);
+    for (start, (name, allowed)) in STARTS.iter().enumerate() {
+        let mut steps = Vec::new();
+        for k in 0.. {
+            let dir = root.join(format!("{start}-{k}"));
+            std::fs::create_dir_all(&dir).unwrap();
+            let path = dir.join("curriculum.json");
+            set_up(start, &path);
+            let run = state(30).save_interrupted(&path, k).unwrap();
+            let at = format!("{name}, stopped after {k} steps {:?}", run.steps);
+            assert!(run.finished || run.steps.len() == k, "{at}");
+            assert!(ServiceState::exists(&path), "{at}: the resume finds no state");
+            let (loaded, read) = resume(&path);
+            assert!(allowed.contains(&loaded), "{at}: loaded {loaded}");
+            if run.finished {
+                assert_eq!((loaded, &read), (30, &path), "{at}");
+            }
+            let tmp = path.with_extension("json.tmp");
+            if tmp.exists() {
+                let bytes = std::fs::read(&tmp).unwrap();
+                std::fs::write(&tmp, &bytes[..bytes.len() / 2]).unwrap();
+            }
+            state(40).save(&path).unwrap();
+            assert_eq!(resume(&path), (40, path.clone()), "{at}: the next save");
+            let prev = ServiceState::previous_generation(&path);
+            assert_eq!(ServiceState::load(&prev).unwrap().next_task_id, loaded, "{at}: the next save keeps it");
+            assert!(!tmp.exists(), "{at}");
+            std::fs::remove_dir_all(&dir).unwrap();
+            if run.finished {
+                steps = run.steps;
+                break;
+            }
+        }
+        eprintln!("{name}: stopped after each of {} steps:\n  {}", steps.len(), steps.join("\n  "));
+        assert!(steps.len() >= 3, "{name}: {steps:?}");
+    }
+    let _ = std::fs::remove_dir_all(&root);
+}
+
+/// Ways of damaging a file: a few bytes in the middle changed (flipped, replaced by
+/// digits, or one number's last digit changed, which keeps the JSON valid), cut to
+/// half its length, or removed.
+const DAMAGE: [&str; 5] = ["flip 4 bytes", "digits over 4 bytes", "one digit", "truncate to half", "remove"];
+
+fn damage(file: &Path, how: &str) {
+    let mut bytes = std::fs::read(file).unwrap();
+    let mid = bytes.len() / 2;
+    match how {
+        "flip 4 bytes" => bytes[mid..mid + 4].iter_mut().for_each(|b| *b ^= 0x5a),
+        "digits over 4 bytes" => {
+            let digits: &[u8] = if &bytes[mid..mid + 4] == b"7777" { b"8888" } else { b"7777" };
+            bytes[mid..mid + 4].copy_from_slice(digits);
+        }
+        // The last digit of the number nearest the middle: JSON stays valid and of
+        // the same types (a digit lowered, or 0 → 1), only a checksum can tell.
+        "one digit" => {
+            let last_digit = |i: usize| bytes[i].is_ascii_digit() && !bytes.get(i + 1).is_some_and(u8::is_ascii_digit);
+            let at = (0..bytes.len()).filter(|&i| last_digit(i)).min_by_key(|&i| i.abs_diff(mid)).unwrap_or(mid);
+            bytes[at] = if bytes[at] == b'0' { b'1' } else { b'0' };
+        }
+        "truncate to half" => bytes.truncate(mid),
+        "remove" => return std::fs::remove_file(file).unwrap(),
+        _ => unreachable!(),
+    }
+    std::fs::write(file, bytes).unwrap();
+}
+
+/// Each file of the saved state damaged in turn, each way: the newest damaged falls
+/// back to the previous generation with a warning naming the newest file; both
+/// damaged, the error names both files; the previous one alone damaged changes
+/// nothing. A save after a fallback keeps the good previous state.
+#[test]
+fn each_damaged_state_file_falls_back_and_is_named() {
+    let dir = std::env::temp_dir().join(format!("pednav-curriculum-damage-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    let path = dir.join("curriculum.json");
+    let prev = ServiceState::previous_generation(&path);
+    state(10).save(&path).unwrap();
+    state(20).save(&path).unwrap();
+    let (newest_kept, prev_kept) = (std::fs::read(&path).unwrap(), std::fs::read(&prev).unwrap());
+    for how in DAMAGE {
+        damage(&path, how);
+        let (resumed, warnings) = logged_warnings(|| resume(&path));
+        assert_eq!(resumed, (10, prev.clone()), "{how}");
+        assert!(
+            warnings.len() == 1 && warnings[0].contains(&path.display().to_string()),
+            "{how}: the warning names the file: {warnings:?}"
+        );
+        damage(&prev, how);
+        let err = ServiceState::load_or_previous(&path).unwrap_err().to_string();
+        for named in [&path, &prev] {
+            assert!(err.contains(&named.display().to_string()), "{how}: the error names {}: {err}", named.display());
+        }
+        std::fs::write(&path, &newest_kept).unwrap();
+        std::fs::write(&prev, &prev_kept).unwrap();
+        damage(&prev, how);
+        let (resumed, warnings) = logged_warnings(|| resume(&path));
+        assert_eq!((resumed, warnings.len()), ((20, path.clone()), 0), "{how}: the previous one damaged");
+        std::fs::write(&prev, &prev_kept).unwrap();
+    }
+
+    // A resume fell back to 10 (20 is damaged); the next save replaces the damaged
+    // one, saying so, and keeps 10 as the previous generation.
+    damage(&path, "flip 4 bytes");
+    let ((), warnings) = logged_warnings(|| state(30).save(&path).unwrap());
+    assert!(warnings.len() == 1 && warnings[0].contains(&path.display().to_string()), "{warnings:?}");
+    assert_eq!(ServiceState::load(&prev).unwrap().next_task_id, 10);
+    damage(&path, "truncate to half");
+    assert_eq!(resume(&path), (10, prev.clone()));
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// The warnings logged on this thread while `f` runs, each as its fields' text.
+fn logged_warnings<T>(f: impl FnOnce() -> T) -> (T, Vec<String>) {
+    let seen = Arc::new(Mutex::new(Vec::new()));
+    let out = tracing::subscriber::with_default(Warnings(seen.clone()), f);
+    let seen = seen.lock().unwrap().clone();
+    (out, seen)
+}
+
+struct Warnings(Arc<Mutex<Vec<String>>>);
+
+impl tracing::Subscriber for Warnings {
+    fn register_callsite(&self, _: &'static tracing::Metadata<'static>) -> tracing::subscriber::Interest {
+        tracing::subscriber::Interest::sometimes()
+    }
+    fn enabled(&self, metadata: &tracing::Metadata<'_>) -> bool {
+        *metadata.level() <= tracing::Level::WARN
+    }
+    fn new_span(&self, _: &tracing::span::Attributes<'_>) -> tracing::span::Id {
+        tracing::span::Id::from_u64(1)
+    }
+    fn record(&self, _: &tracing::span::Id, _: &tracing::span::Record<'_>) {}
+    fn record_follows_from(&self, _: &tracing::span::Id, _: &tracing::span::Id) {}
+    fn event(&self, event: &tracing::Event<'_>) {
+        let mut text = String::new();
+        event.record(&mut Fields(&mut text));
+        self.0.lock().unwrap().push(text);
+    }
+    fn enter(&self, _: &tracing::span::Id) {}
+    fn exit(&self, _: &tracing::span::Id) {}
+}
+
+struct Fields<'a>(&'a mut String);
+
+impl tracing::field::Visit for Fields<'_> {
+    fn record_debug(&mut self, field: &tracing::field::Field, value: &dyn std::fmt::Debug) {
+        use std::fmt::Write;
+        let _ = write!(self.0, "{}={value:?} ", field.name());
+    }
 }

@@ -1,13 +1,17 @@
 //! Checkpoints: safetensors weights per network, the optimisers' moments, and a
 //! JSON state file (architecture, counters, temperature lives in `log_alpha`,
-//! RNG state, rate-limiter counters, CRC-32 of every tensor file).
+//! RNG state, rate-limiter counters, CRC-32 of every tensor file and, as its last
+//! field, of the state file itself).
 //!
 //! Invariants: a checkpoint directory is written beside the target as
-//! `<dir>.tmp` and renamed into place, so a crash mid-save leaves the previous
-//! checkpoint intact; loading verifies the format, the architecture, every checksum
-//! and every tensor name and shape *before* changing anything, so an incompatible
-//! or corrupted checkpoint returns an error and leaves the learner as it was; a
-//! save followed by a load restores weights, moments, counters and RNG bit-exactly.
+//! `<dir>.tmp`, synced and renamed into place, keeping the checkpoint it replaces as
+//! the previous generation (`<dir>.prev`), so a crash at any point of a save leaves a
+//! loadable checkpoint in one of the two (tests stop a save after each of its steps,
+//! [`save_checkpoint_interrupted`]); loading verifies the format, the architecture,
+//! every checksum and every tensor name and shape *before* changing anything, so an
+//! incompatible or corrupted checkpoint returns an error and leaves the learner as it
+//! was; a save followed by a load restores weights, moments, counters and RNG
+//! bit-exactly.
 //!
 //! The replay contents are not saved (≈ 10 GB at paper scale): a resumed run
 //! refills the replay and waits for the warm-up again before updating.
@@ -25,8 +29,9 @@ use crate::dsac::Dsac;
 use crate::error::{LearnerError, Result};
 use crate::rate::RateLimiter;
 
-/// Version of the on-disk layout.
-pub const FORMAT: u32 = 1;
+/// Version of the on-disk layout: 2 adds the state file's own checksum (format 1 is
+/// still read).
+pub const FORMAT: u32 = 2;
 const STATE_FILE: &str = "state.json";
 const OPTIM_FILE: &str = "optimizer.safetensors";
 /// Name of the temperature's store (and, with `.safetensors`, its file).
@@ -82,32 +87,176 @@ pub fn previous_generation(dir: &Path) -> PathBuf {
     PathBuf::from(format!("{}.prev", dir.display()))
 }
 
+/// Where a checkpoint is written before it is moved into place: `<dir>.tmp`.
+fn partial_generation(dir: &Path) -> PathBuf {
+    PathBuf::from(format!("{}.tmp", dir.display()))
+}
+
 /// Write a checkpoint of `dsac` (plus optional limiter counters and free-form
 /// `extra`) to `dir`; the checkpoint that was there becomes the previous generation
 /// ([`previous_generation`]), and the one before that is dropped.
 ///
-/// Order: the new one is written completely beside the others (`<dir>.tmp`), then the
-/// previous generation is dropped, the newest becomes the previous, the new one the
-/// newest. An interruption at any point leaves a loadable checkpoint in `dir` or in
-/// the previous generation ([`load_checkpoint_or_previous`] finds it).
+/// Order: the new one is written completely beside the others (`<dir>.tmp`, every
+/// file synced), then the previous generation is dropped file by file, the newest
+/// becomes the previous, the new one the newest. An interruption at any point leaves
+/// a loadable checkpoint in `dir` or in the previous generation
+/// ([`load_checkpoint_or_previous`] finds it), and the next save clears what it left.
+/// A newest checkpoint that fails its checksums is not kept as the previous
+/// generation: it is replaced and the previous generation stays, so a resume that
+/// fell back to the previous one keeps it until a good one replaces it.
 pub fn save_checkpoint(
     dir: &Path,
     dsac: &mut Dsac,
     limiter: Option<RateLimiter>,
     extra: serde_json::Value,
 ) -> Result<()> {
-    let tmp = PathBuf::from(format!("{}.tmp", dir.display()));
-    if tmp.exists() {
-        fs::remove_dir_all(&tmp).map_err(|e| ck_err(&tmp, format!("cannot remove a stale partial checkpoint: {e}")))?;
+    match save_steps(dir, dsac, limiter, extra, &mut Steps::new(None)) {
+        Ok(()) => Ok(()),
+        Err(Halt::Failed(e)) => Err(e),
+        Err(Halt::Stopped) => unreachable!("a save without a stop point runs to the end"),
     }
-    fs::create_dir_all(&tmp).map_err(|e| ck_err(&tmp, format!("cannot create: {e}")))?;
+}
+
+/// What [`save_checkpoint_interrupted`] did before it stopped.
+#[doc(hidden)]
+#[derive(Debug, Clone)]
+pub struct InterruptedSave {
+    /// The filesystem steps done, in order.
+    pub steps: Vec<String>,
+    /// Whether the save ran to its end within the steps allowed.
+    pub finished: bool,
+}
+
+/// Fault injection for the crash tests: [`save_checkpoint`] stopped after its first
+/// `stop_after` filesystem steps (each a write-and-sync of one file, a removal, a
+/// rename or a directory sync), leaving the files as a kill at that point would.
+#[doc(hidden)]
+pub fn save_checkpoint_interrupted(
+    dir: &Path,
+    dsac: &mut Dsac,
+    limiter: Option<RateLimiter>,
+    extra: serde_json::Value,
+    stop_after: usize,
+) -> Result<InterruptedSave> {
+    let mut steps = Steps::new(Some(stop_after));
+    let finished = match save_steps(dir, dsac, limiter, extra, &mut steps) {
+        Ok(()) => true,
+        Err(Halt::Stopped) => false,
+        Err(Halt::Failed(e)) => return Err(e),
+    };
+    Ok(InterruptedSave { steps: steps.done, finished })
+}
+
+/// Why a save stopped early.
+enum Halt {
+    /// At the stop point of a simulated kill.
+    Stopped,
+    /// A step failed.
+    Failed(LearnerError),
+}
+
+impl From<LearnerError> for Halt {
+    fn from(e: LearnerError) -> Self {
+        Halt::Failed(e)
+    }
+}
+
+/// The filesystem steps of a save, done in order; with a stop point, the ones after
+/// it are not done (a kill there).
+struct Steps {
+    stop_after: Option<usize>,
+    done: Vec<String>,
+}
+
+impl Steps {
+    fn new(stop_after: Option<usize>) -> Steps {
+        Steps { stop_after, done: Vec::new() }
+    }
+
+    /// Do `step` (described by `what`) unless the stop point is reached.
+    fn run<T>(&mut self, what: impl FnOnce() -> String, step: impl FnOnce() -> Result<T>) -> Result<T, Halt> {
+        if self.stop_after.is_some_and(|n| self.done.len() >= n) {
+            return Err(Halt::Stopped);
+        }
+        let out = step()?;
+        if self.stop_after.is_some() {
+            self.done.push(what());
+        }
+        Ok(out)
+    }
+}
+
+/// Flush `path` (a file, or a directory's entries) to the disk.
+fn sync_path(path: &Path) -> Result<()> {
+    fs::File::open(path).and_then(|f| f.sync_all()).map_err(|e| ck_err(path, format!("cannot sync: {e}")))
+}
+
+/// Write `bytes` to `path` and flush it to the disk.
+fn write_synced(path: &Path, bytes: &[u8]) -> Result<()> {
+    use std::io::Write;
+    let mut f = fs::File::create(path).map_err(|e| ck_err(path, format!("cannot create: {e}")))?;
+    f.write_all(bytes).and_then(|()| f.sync_all()).map_err(|e| ck_err(path, format!("cannot write: {e}")))
+}
+
+/// Remove the checkpoint directory `dir` one file at a time, the state file first
+/// (so a part-removed one is not taken for a checkpoint), then the directory.
+fn remove_generation(dir: &Path, steps: &mut Steps) -> Result<(), Halt> {
+    let mut entries: Vec<PathBuf> = fs::read_dir(dir)
+        .map_err(|e| ck_err(dir, format!("cannot list: {e}")))?
+        .map(|e| e.map(|e| e.path()))
+        .collect::<std::io::Result<_>>()
+        .map_err(|e| ck_err(dir, format!("cannot list: {e}")))?;
+    entries.sort_by_key(|p| (p.file_name() != Some(std::ffi::OsStr::new(STATE_FILE)), p.clone()));
+    for path in &entries {
+        steps.run(
+            || format!("remove {}", path.display()),
+            || {
+                if path.is_dir() { fs::remove_dir_all(path) } else { fs::remove_file(path) }
+                    .map_err(|e| ck_err(path, format!("cannot remove: {e}")))
+            },
+        )?;
+    }
+    steps.run(
+        || format!("remove {}", dir.display()),
+        || fs::remove_dir(dir).map_err(|e| ck_err(dir, format!("cannot remove: {e}"))),
+    )
+}
+
+fn save_steps(
+    dir: &Path,
+    dsac: &mut Dsac,
+    limiter: Option<RateLimiter>,
+    extra: serde_json::Value,
+    steps: &mut Steps,
+) -> Result<(), Halt> {
+    let tmp = partial_generation(dir);
+    if tmp.exists() {
+        steps.run(
+            || format!("remove the stale {}", tmp.display()),
+            || {
+                fs::remove_dir_all(&tmp)
+                    .map_err(|e| ck_err(&tmp, format!("cannot remove a stale partial checkpoint: {e}")))
+            },
+        )?;
+    }
+    steps.run(
+        || format!("create {}", tmp.display()),
+        || fs::create_dir_all(&tmp).map_err(|e| ck_err(&tmp, format!("cannot create: {e}"))),
+    )?;
     let mut checksums = BTreeMap::new();
     let stores = checkpoint_stores(dsac);
     for store in &stores {
         let file = format!("{}.safetensors", store.name());
         let path = tmp.join(&file);
-        candle_core::safetensors::save(&store.tensors(), &path).map_err(|e| ck_err(&path, e.to_string()))?;
-        checksums.insert(file, crc_of(&path)?);
+        let crc = steps.run(
+            || format!("write and sync {}", path.display()),
+            || {
+                candle_core::safetensors::save(&store.tensors(), &path).map_err(|e| ck_err(&path, e.to_string()))?;
+                sync_path(&path)?;
+                crc_of(&path)
+            },
+        )?;
+        checksums.insert(file, crc);
     }
     let mut moments: HashMap<String, Tensor> = HashMap::new();
     let mut optimizer_steps = BTreeMap::new();
@@ -118,8 +267,15 @@ pub fn save_checkpoint(
         }
     }
     let path = tmp.join(OPTIM_FILE);
-    candle_core::safetensors::save(&moments, &path).map_err(|e| ck_err(&path, e.to_string()))?;
-    checksums.insert(OPTIM_FILE.to_string(), crc_of(&path)?);
+    let crc = steps.run(
+        || format!("write and sync {}", path.display()),
+        || {
+            candle_core::safetensors::save(&moments, &path).map_err(|e| ck_err(&path, e.to_string()))?;
+            sync_path(&path)?;
+            crc_of(&path)
+        },
+    )?;
+    checksums.insert(OPTIM_FILE.to_string(), crc);
     let meta = CheckpointMeta {
         format: FORMAT,
         nets: dsac.nets.cfg.clone(),
@@ -134,25 +290,68 @@ pub fn save_checkpoint(
         checksums,
     };
     let path = tmp.join(STATE_FILE);
-    let json = serde_json::to_string_pretty(&meta).map_err(|e| ck_err(&path, e.to_string()))?;
-    fs::write(&path, json).map_err(|e| ck_err(&path, format!("cannot write: {e}")))?;
-    // Rotate: drop the previous generation, newest → previous, new → newest.
+    let text = state_file_text(&meta).map_err(|e| ck_err(&path, e.to_string()))?;
+    steps.run(|| format!("write and sync {}", path.display()), || write_synced(&path, text.as_bytes()))?;
+    steps.run(|| format!("sync {}", tmp.display()), || sync_path(&tmp))?;
+    // Rotate: drop the previous generation, newest → previous, new → newest. A newest
+    // that is damaged is dropped instead, and the previous generation stays.
     let prev = previous_generation(dir);
     if dir.exists() {
-        if prev.exists() {
-            fs::remove_dir_all(&prev).map_err(|e| ck_err(&prev, e.to_string()))?;
+        match verify_files(dir) {
+            Ok(()) => {
+                if prev.exists() {
+                    remove_generation(&prev, steps)?;
+                }
+                steps.run(
+                    || format!("rename {} to {}", dir.display(), prev.display()),
+                    || {
+                        fs::rename(dir, &prev)
+                            .map_err(|e| ck_err(dir, format!("cannot keep the previous checkpoint: {e}")))
+                    },
+                )?;
+            }
+            Err(damaged) => {
+                tracing::warn!(
+                    damaged = %damaged,
+                    kept = %prev.display(),
+                    "the newest checkpoint is damaged: replacing it, the previous generation stays"
+                );
+                remove_generation(dir, steps)?;
+            }
         }
-        fs::rename(dir, &prev).map_err(|e| ck_err(dir, format!("cannot keep the previous checkpoint: {e}")))?;
     }
-    fs::rename(&tmp, dir).map_err(|e| ck_err(dir, format!("cannot move the new checkpoint into place: {e}")))?;
+    steps.run(
+        || format!("rename {} to {}", tmp.display(), dir.display()),
+        || fs::rename(&tmp, dir).map_err(|e| ck_err(dir, format!("cannot move the new checkpoint into place: {e}"))),
+    )?;
+    if let Some(parent) = dir.parent().filter(|p| !p.as_os_str().is_empty()) {
+        steps.run(|| format!("sync {}", parent.display()), || sync_path(parent))?;
+    }
+    Ok(())
+}
+
+/// Check the checkpoint in `dir` without loading it: its state file (and that
+/// file's checksum) and the checksum of every file it lists.
+fn verify_files(dir: &Path) -> Result<()> {
+    let meta = read_meta(dir)?;
+    for (file, want) in &meta.checksums {
+        let path = dir.join(file);
+        let got = crc_of(&path)?;
+        if got != *want {
+            return Err(ck_err(
+                &path,
+                format!("checksum mismatch (file {got:08x}, state file {want:08x}): the file is corrupted"),
+            ));
+        }
+    }
     Ok(())
 }
 
 /// [`load_checkpoint`] of the newest checkpoint in `dir`, or — when it is missing or
 /// damaged (a file whose checksum does not match, an interrupted write) — of the
-/// previous generation, with a warning naming what was wrong with the newest. Returns
+/// previous generation, with a warning naming the damaged file of the newest. Returns
 /// the state file and the folder that was loaded; an error names both generations'
-/// problems. `dsac` changes only when a load succeeds.
+/// problems (each naming its file). `dsac` changes only when a load succeeds.
 pub fn load_checkpoint_or_previous(dir: &Path, dsac: &mut Dsac) -> Result<(CheckpointMeta, PathBuf)> {
     let newest = match load_checkpoint(dir, dsac) {
         Ok(meta) => return Ok((meta, dir.to_path_buf())),
@@ -181,18 +380,51 @@ pub fn checkpoint_exists(dir: &Path) -> bool {
     dir.join(STATE_FILE).is_file() || previous_generation(dir).join(STATE_FILE).is_file()
 }
 
-/// Read the state file of the checkpoint in `dir` without loading weights.
+/// What precedes the state file's own checksum, its last field. The checksum covers
+/// the file's bytes before it.
+const STATE_CRC_FIELD: &str = ",\n  \"state_crc32\": ";
+
+/// The text of the state file of `meta`: pretty JSON whose last field is the CRC-32
+/// of the text before it (still plain JSON; readers ignore the field).
+fn state_file_text(meta: &CheckpointMeta) -> serde_json::Result<String> {
+    let json = serde_json::to_string_pretty(meta)?;
+    let body = json.strip_suffix("\n}").expect("a pretty-printed JSON object ends with `\\n}`");
+    let crc = crc32fast::hash(body.as_bytes());
+    Ok(format!("{body}{STATE_CRC_FIELD}\"{crc:08x}\"\n}}\n"))
+}
+
+/// Read the state file of the checkpoint in `dir` without loading weights, verifying
+/// its checksum (format 1, written before state files carried one, is read as it is).
 pub fn read_meta(dir: &Path) -> Result<CheckpointMeta> {
     let path = dir.join(STATE_FILE);
-    let text = fs::read_to_string(&path)
-        .map_err(|e| ck_err(&path, format!("cannot read ({e}); is this a checkpoint directory?")))?;
+    let bytes =
+        fs::read(&path).map_err(|e| ck_err(&path, format!("cannot read ({e}); is this a checkpoint directory?")))?;
+    let field = STATE_CRC_FIELD.as_bytes();
+    let checked = match bytes.windows(field.len()).rposition(|w| w == field) {
+        Some(at) => {
+            let recorded = bytes[at + field.len()..].get(1..9);
+            let want = recorded.and_then(|h| std::str::from_utf8(h).ok()).and_then(|h| u32::from_str_radix(h, 16).ok());
+            let got = crc32fast::hash(&bytes[..at]);
+            if want != Some(got) {
+                return Err(ck_err(
+                    &path,
+                    format!("checksum mismatch (file {got:08x}, recorded {want:08x?}): the state file is corrupted"),
+                ));
+            }
+            true
+        }
+        None => false,
+    };
     let meta: CheckpointMeta =
-        serde_json::from_str(&text).map_err(|e| ck_err(&path, format!("corrupted state file: {e}")))?;
-    if meta.format != FORMAT {
+        serde_json::from_slice(&bytes).map_err(|e| ck_err(&path, format!("corrupted state file: {e}")))?;
+    if !(1..=FORMAT).contains(&meta.format) {
         return Err(ck_err(
             &path,
-            format!("format {} is not supported (this build reads format {FORMAT})", meta.format),
+            format!("format {} is not supported (this build reads formats 1 to {FORMAT})", meta.format),
         ));
+    }
+    if meta.format >= 2 && !checked {
+        return Err(ck_err(&path, "its checksum field is missing: the state file is corrupted"));
     }
     Ok(meta)
 }

@@ -25,9 +25,12 @@
 //! batch then carries o_t's as `state_target`.
 //!
 //! Memory: the ring holds `nonterminal_capacity` frames (84×84 u8: 7,056 B each,
-//! so 1.5e6 frames ≈ 10.6 GB; 42×42: 2.6 GB) plus 32 B per step of links,
-//! actions and rewards; a terminal entry holds (N_h + 1) frames (120 kB at 84×84,
-//! N_h 16). Both grow on demand up to their capacities.
+//! so 1.5e6 frames ≈ 10.6 GB; 42×42: 2.6 GB) plus 25 B per step of links,
+//! actions, rewards and flags; a terminal entry holds (N_h + 1) frames and N_h
+//! actions/rewards (120 kB at 84×84, N_h 16). Both grow on demand up to their
+//! capacities. The per-item sizes are [`ReplayFootprint`] (pednav-config), which
+//! `pednav-run check` multiplies out for its memory estimate;
+//! [`DualReplay::stored_bytes`] counts what is actually held and is tested equal to it.
 
 use std::collections::HashMap;
 
@@ -36,7 +39,10 @@ use pednav_nets::{ACTION_DIM, Transitions};
 use rand::Rng;
 use rand_chacha::ChaCha8Rng;
 
-pub use pednav_config::{FrameKind, ReplayConfig};
+pub use pednav_config::{FrameKind, ReplayConfig, ReplayFootprint};
+
+// The footprint's action size is the one stored here.
+const _: () = assert!(pednav_config::replay::ACTION_VALUES == ACTION_DIM);
 
 use crate::error::{LearnerError, Result, config_error};
 
@@ -283,6 +289,39 @@ impl DualReplay {
     /// Steps inserted since creation.
     pub fn inserted(&self) -> u64 {
         self.ring.head
+    }
+
+    /// Bytes per ring step and per terminal entry of this replay (what the run's
+    /// memory estimate multiplies by the pools' sizes).
+    pub fn footprint(&self) -> ReplayFootprint {
+        ReplayFootprint::new(self.kind, self.history, self.target_dim)
+    }
+
+    /// Bytes of step and entry data held now (the vectors' lengths times their
+    /// element sizes; spare capacity of a vector is not counted — it is never
+    /// touched, so not resident). Equals `min(inserted, nonterminal_capacity) ×
+    /// ring_step + terminal_len × terminal_entry` of [`DualReplay::footprint`].
+    pub fn stored_bytes(&self) -> usize {
+        fn bytes<T>(v: &[T]) -> usize {
+            std::mem::size_of_val(v)
+        }
+        fn frames(f: &Frames) -> usize {
+            match f {
+                Frames::U8(v) => bytes(v),
+                Frames::F32(v) => bytes(v),
+            }
+        }
+        let r = &self.ring;
+        frames(&r.frames)
+            + bytes(&r.prev)
+            + bytes(&r.action)
+            + bytes(&r.reward)
+            + bytes(&r.terminal)
+            + bytes(&r.targets)
+            + frames(&self.term_frames)
+            + bytes(&self.term_actions)
+            + bytes(&self.term_rewards)
+            + bytes(&self.term_targets)
     }
 
     /// Store one step. A step of a stream whose episode start was never seen (e.g.
@@ -595,5 +634,71 @@ impl BatchBuilder {
             },
             n_terminal,
         })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// What the replay holds is exactly its footprint times its counts, so the memory
+    /// estimate of `pednav-run check` (which uses the same footprint) cannot drift
+    /// from the storage: pixels and state vectors, with and without state targets,
+    /// both pools wrapped around.
+    #[test]
+    fn stored_bytes_are_the_footprint_times_the_counts() {
+        for (kind, history, target_dim) in [
+            (FrameKind::Pixels { size: 3 }, 4, 0),
+            (FrameKind::Pixels { size: 2 }, 2, 5),
+            (FrameKind::State { dim: 6 }, 1, 0),
+            (FrameKind::State { dim: 6 }, 1, 3),
+        ] {
+            let cfg = ReplayConfig { nonterminal_capacity: 40, terminal_capacity: 3 };
+            let mut r = DualReplay::new(&cfg, kind, history, &Device::Cpu).unwrap();
+            if target_dim > 0 {
+                r = r.with_state_targets(target_dim).unwrap();
+            }
+            let fp = r.footprint();
+            assert_eq!(fp, ReplayFootprint::new(kind, history, target_dim));
+            assert_eq!(r.stored_bytes(), 0);
+            let pixels = vec![7u8; kind.values_per_frame()];
+            let state = vec![0.5f32; kind.values_per_frame()];
+            let target = vec![1.0f32; target_dim];
+            // Episodes of 2 … 6 steps from two interleaved streams, every one reaching the goal.
+            let mut terminals = 0;
+            for episode in 0..30u64 {
+                let len = 2 + (episode % 5) as usize;
+                for t in 0..len {
+                    for stream in 0..2 {
+                        let step = Step {
+                            stream,
+                            first: t == 0,
+                            frame: match kind {
+                                FrameKind::Pixels { .. } => Frame::Pixels(&pixels),
+                                FrameKind::State { .. } => Frame::State(&state),
+                            },
+                            action: [0.1; ACTION_DIM],
+                            reward: -1.0,
+                            terminal: t + 1 == len,
+                            state_target: (target_dim > 0).then_some(&target[..]),
+                        };
+                        assert!(r.push(&step).unwrap());
+                        terminals += usize::from(t + 1 == len);
+                        let slots = (r.inserted() as usize).min(cfg.nonterminal_capacity);
+                        assert_eq!(r.terminal_len(), terminals.min(cfg.terminal_capacity));
+                        assert_eq!(
+                            r.stored_bytes(),
+                            slots * fp.ring_step + r.terminal_len() * fp.terminal_entry,
+                            "{kind:?}, N_h {history}, targets {target_dim}"
+                        );
+                    }
+                }
+            }
+            assert!(r.inserted() as usize > 2 * cfg.nonterminal_capacity);
+        }
+        // The closed form, by hand: 84×84 pixels, N_h 16, no targets.
+        let fp = ReplayFootprint::new(FrameKind::Pixels { size: 84 }, 16, 0);
+        assert_eq!(fp.ring_step, 7056 + 8 + 12 + 4 + 1);
+        assert_eq!(fp.terminal_entry, 17 * 7056 + 16 * (12 + 4));
     }
 }

@@ -1,12 +1,14 @@
 //! Losses, the temperature update and checkpoints against hand-computed values.
 
+mod common;
+use common::small;
+
 use candle_core::{Device, Tensor};
 use pednav_learner::{
     Batch, Dsac, DsacConfig, DualReplay, Frame, FrameKind, ReplayConfig, Step, acting_files, agent_files,
-    checkpoint_exists, fraction_gradient, load_acting, load_agent, load_checkpoint, load_checkpoint_or_previous,
-    previous_generation, quantile_huber_loss, save_checkpoint, smaller_mean,
+    fraction_gradient, load_acting, load_agent, load_checkpoint, quantile_huber_loss, save_checkpoint, smaller_mean,
 };
-use pednav_nets::{DsacNets, EncoderKind, NetsConfig, Obs};
+use pednav_nets::{DsacNets, NetsConfig, Obs};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
@@ -159,21 +161,6 @@ fn state_batch(b: usize, rng: &mut ChaCha8Rng) -> Batch {
     replay.sample(b, rng).unwrap()
 }
 
-fn small() -> (DsacConfig, NetsConfig) {
-    (
-        DsacConfig { batch_size: 16, warmup: 16, twin_critics: false, ..Default::default() },
-        NetsConfig {
-            encoder: EncoderKind::Mlp,
-            state_dim: 4,
-            history: 1,
-            hidden: 32,
-            quantiles: 8,
-            quantile_grid: 8,
-            ..Default::default()
-        },
-    )
-}
-
 /// The device check's comparison: the same device twice gives identical losses and
 /// weights and passes; each tolerance fails just beyond its bound (lr 3e-4 → two Adam
 /// steps 6e-4 + 1e-5).
@@ -285,63 +272,6 @@ fn state_prediction_loss_by_hand_and_it_shapes_the_critic_encoder() {
     bare.state_target = None;
     let err = aux.update(&bare).unwrap_err().to_string();
     assert!(err.contains("state targets"), "{err}");
-}
-
-/// Checkpoints keep the previous generation: damaging any one file of the newest
-/// makes the resume fall back to the previous (the values saved then); an interrupted
-/// rotation (the newest moved aside, the new one not yet in place) resumes from the
-/// previous; with both damaged the error names both.
-#[test]
-fn a_damaged_newest_checkpoint_falls_back_to_the_previous_generation() {
-    let dir = std::env::temp_dir().join(format!("pednav-ckpt-generations-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&dir);
-    let ck = dir.join("learner");
-    let mut rng = ChaCha8Rng::seed_from_u64(12);
-    let (cfg, nets) = small();
-    let mut a = Dsac::new(&cfg, &nets, &Device::Cpu, 1).unwrap();
-    a.update(&state_batch(16, &mut rng)).unwrap();
-    save_checkpoint(&ck, &mut a, None, serde_json::Value::Null).unwrap();
-    let first = all_values(&a);
-    a.update(&state_batch(16, &mut rng)).unwrap();
-    save_checkpoint(&ck, &mut a, None, serde_json::Value::Null).unwrap();
-    let second = all_values(&a);
-    assert_ne!(first, second);
-    let prev = previous_generation(&ck);
-    assert!(checkpoint_exists(&ck) && prev.join("state.json").exists());
-    let fresh = || Dsac::new(&cfg, &nets, &Device::Cpu, 9).unwrap();
-    let (_, loaded) = load_checkpoint_or_previous(&ck, &mut fresh()).unwrap();
-    assert_eq!(loaded, ck);
-    let mut files: Vec<_> = std::fs::read_dir(&ck).unwrap().flatten().map(|e| e.path()).collect();
-    files.sort();
-    assert!(files.len() >= 5, "state, four stores, log α, moments: {files:?}");
-    for file in &files {
-        let bytes = std::fs::read(file).unwrap();
-        let mut damaged = bytes.clone();
-        let at = damaged.len() / 2;
-        damaged[at] ^= 0x5a;
-        std::fs::write(file, &damaged).unwrap();
-        let mut b = fresh();
-        let (_, loaded) = load_checkpoint_or_previous(&ck, &mut b).unwrap();
-        assert_eq!(loaded, prev, "{} damaged", file.display());
-        assert_eq!(all_values(&b), first, "{} damaged: the previous generation's values", file.display());
-        std::fs::write(file, &bytes).unwrap();
-    }
-    // Interrupted after the newest moved aside: only the previous generation (which
-    // now holds the second checkpoint) is left.
-    std::fs::remove_dir_all(&prev).unwrap();
-    std::fs::rename(&ck, &prev).unwrap();
-    assert!(checkpoint_exists(&ck));
-    let mut b = fresh();
-    assert_eq!(load_checkpoint_or_previous(&ck, &mut b).unwrap().1, prev);
-    assert_eq!(all_values(&b), second);
-    // Nothing loadable: the error names both generations' problems.
-    let quantile = prev.join("quantile.safetensors");
-    let mut bytes = std::fs::read(&quantile).unwrap();
-    bytes[10] ^= 1;
-    std::fs::write(&quantile, &bytes).unwrap();
-    let err = load_checkpoint_or_previous(&ck, &mut fresh()).map(|_| ()).unwrap_err().to_string();
-    assert!(err.contains("neither") && err.contains("checksum"), "{err}");
-    let _ = std::fs::remove_dir_all(&dir);
 }
 
 fn all_values(d: &Dsac) -> Vec<Vec<f32>> {

@@ -7,7 +7,8 @@
 //! reached the actor and were used; tasks came from the curriculum service; an
 //! actor, the learner and the curriculum service killed with SIGKILL are each
 //! restarted (the learner from its checkpoint, the curriculum service from its state)
-//! and training continues; a stop writes a
+//! and training continues; a config that cannot fit in memory is refused by `check`
+//! and `launch` naming the field; a stop writes a
 //! final checkpoint and a restart resumes from it; and that the loop learns: the
 //! state preset (two actors) opens a strict first-task gate within a fixed env-step
 //! budget. Only watchdogs — no timing assertions.
@@ -220,6 +221,37 @@ fn a_bad_config_stops_before_any_process_starts() {
     std::fs::write(&bad, "[curriculum]\nvariant = \"navacl_sideways\"\n").unwrap();
     let err = refused_check(&bad);
     assert!(err.contains("variant") && err.contains("navacl_sideways"), "{err}");
+}
+
+/// A config whose replay cannot fit in this machine's memory (a terminal pool of
+/// 1e15 entries, each holding 5 frames of 42×42) passes every per-field rule, but
+/// `check` and `launch` refuse it before anything starts, naming the field and the
+/// estimate; `check` of the shipped smoke config prints the estimate and its total.
+#[test]
+fn a_config_that_cannot_fit_in_memory_stops_before_any_process_starts() {
+    let root = scratch_dir("runtime-memory");
+    let smoke = std::fs::read_to_string(workspace_root().join("deploy/configs/smoke.toml")).unwrap();
+    let huge = root.join("huge.toml");
+    std::fs::write(&huge, smoke.replace("terminal_capacity = 2000", "terminal_capacity = 1000000000000000")).unwrap();
+    let err = refused_check(&huge);
+    assert!(
+        err.contains("replay.terminal_capacity") && err.contains("1000000000000000") && err.contains("GiB"),
+        "{err}"
+    );
+    let err = refused_launch(&huge, &root.join("run"), &[]);
+    assert!(err.contains("replay.terminal_capacity") && err.contains("huge.toml"), "{err}");
+
+    let out = Command::new(bin_dir().join("pednav-run"))
+        .args(["check", workspace_root().join("deploy/configs/smoke.toml").to_str().unwrap()])
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "{stderr}");
+    assert!(
+        stderr.contains("memory estimate") && stderr.contains("replay, terminal pool") && stderr.contains("total"),
+        "{stderr}"
+    );
+    assert!(!String::from_utf8_lossy(&out.stdout).contains("memory estimate"), "stdout stays the resolved config");
 }
 
 /// `run_local.sh` with `config` and `extra` flags, which must fail before creating

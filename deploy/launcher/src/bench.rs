@@ -9,6 +9,9 @@
 //! - `system`: env steps/s of a whole run (launcher, curriculum, learner, N actors)
 //!   with a random policy or with inference, the learner only inserting (warm-up
 //!   larger than the budget), so the figure is the actors' + IPC's + replay's.
+//! - `soak`: a long smoke-config run whose learner, curriculum service and actors
+//!   are SIGKILLed at seeded random times; restarts, steps lost, whether training
+//!   continued (`soak.rs`; not in CI).
 
 use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
@@ -58,6 +61,11 @@ pub enum Bench {
         #[arg(long, default_value_t = true)]
         inference: bool,
     },
+    /// Soak: a smoke-config run (30 min by default; not in CI) whose learner, curriculum
+    /// service and actors are SIGKILLed at seeded random times; reports the launcher's
+    /// restarts, whether training continued after each kill, and steps lost between
+    /// the actors and the learner (Markdown on stdout, soak.json in the run directory).
+    Soak(crate::soak::Soak),
     /// (internal) publisher side of `stream`.
     #[command(hide = true)]
     StreamPublisher { prefix: String, records: u64, frame: usize },
@@ -81,6 +89,7 @@ pub fn run(b: Bench) -> Result<()> {
         Bench::Weights { subscribers, repeats, image_size } => weights_latency(subscribers, repeats, image_size),
         Bench::WeightsSubscriber { prefix, repeats, ready } => weights_subscriber(&prefix, repeats, &ready),
         Bench::System { actors, envs, steps, inference } => system(&actors, envs, steps, inference),
+        Bench::Soak(args) => crate::soak::run(args),
     }
 }
 

@@ -2,14 +2,15 @@
 //! checked, devices opened, run directory created or resumed, the run locked —
 //! then handed to the [`Supervisor`].
 //!
-//! Invariant: everything that can refuse a run is checked before any process starts.
+//! Invariant: everything that can refuse a run — the config's rules, its devices, the
+//! memory it needs against the machine's — is checked before any process starts.
 
 use std::path::PathBuf;
 
 use anyhow::{Context, Result, bail};
 use clap::Args;
 use pednav_nets::DeviceSpec;
-use pednav_runtime::{RunConfig, RunDir, StopFlag, run_prefix};
+use pednav_runtime::{MemoryPlan, RunConfig, RunDir, StopFlag, memory, run_prefix};
 
 use crate::supervisor::{ProcessPlan, Supervisor};
 
@@ -65,6 +66,33 @@ pub fn check_devices(learner: DeviceSpec, actors: DeviceSpec) -> Result<()> {
     Ok(())
 }
 
+/// Estimate the memory the run of `cfg` (read from `file`) needs under `plan`, print
+/// the estimate (stderr, one line per component and the total against the machine),
+/// and refuse it when it exceeds what the machine can give ([`pednav_runtime::memory`]:
+/// the error names the fields and what fits). When `/proc/meminfo` cannot be read it
+/// warns and refuses nothing.
+pub fn check_memory(cfg: &RunConfig, file: &str, plan: &MemoryPlan) -> Result<()> {
+    let machine = memory::machine_memory();
+    let estimate = cfg.memory_estimate(plan)?;
+    for line in estimate.lines(machine) {
+        eprintln!("pednav: {line}");
+    }
+    if machine.is_none() {
+        eprintln!("pednav: warning: cannot read MemTotal from /proc/meminfo; the estimate is not checked");
+    }
+    estimate.check(cfg, file, machine)?;
+    if let Some(available) = memory::available_memory()
+        && estimate.host_total() > available as u128
+    {
+        eprintln!(
+            "pednav: warning: the estimate exceeds the memory available now ({}, MemAvailable): other processes \
+             hold the rest",
+            memory::human(available as u128)
+        );
+    }
+    Ok(())
+}
+
 /// Prepare the run of `args` and supervise it to the end.
 pub fn launch(args: Launch) -> Result<()> {
     let Launch { actors, config, run_dir, seed, overrides, bin_dir, learner_threads, envs, device, actor_device } =
@@ -78,7 +106,7 @@ pub fn launch(args: Launch) -> Result<()> {
         bail!("--actors must be 1 … {}, got {actors}", pednav_runtime::ipc::MAX_ACTORS);
     }
     // 1. Config and run directory: everything is checked before any process starts.
-    let (cfg, run_dir) = match (config, run_dir) {
+    let (cfg, run_dir, file) = match (config, run_dir) {
         (Some(path), run_dir) => {
             let mut cfg = RunConfig::load_with(&path, &overrides)?;
             if let Some(s) = seed {
@@ -89,7 +117,7 @@ pub fn launch(args: Launch) -> Result<()> {
                 let secs = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).unwrap().as_secs();
                 PathBuf::from("runs").join(format!("{stem}-{secs}"))
             });
-            (cfg, dir)
+            (cfg, dir, path)
         }
         (None, Some(dir)) => {
             let path = dir.join("config.toml");
@@ -99,13 +127,15 @@ pub fn launch(args: Launch) -> Result<()> {
             if seed.is_some() || !overrides.is_empty() {
                 bail!("--seed and --set only apply to new runs; {} already has its config", dir.display());
             }
-            (RunConfig::load(&path)?, dir)
+            (RunConfig::load(&path)?, dir, path)
         }
         (None, None) => bail!("pass --config FILE (a new run) or --run-dir DIR (resume)"),
     };
     let (learner_device, actor_device) =
         (device.unwrap_or(cfg.runtime.device), actor_device.unwrap_or(cfg.runtime.actor_device));
     check_devices(learner_device, actor_device)?;
+    let envs_per_actor = envs.unwrap_or(cfg.runtime.envs_per_actor);
+    check_memory(&cfg, &file.display().to_string(), &MemoryPlan { actors, envs_per_actor, learner_device })?;
     let bins = bin_dir.map_or_else(default_bin_dir, Ok)?;
     for b in ["pednav-actor", "pednav-learner", "pednav-curriculum"] {
         if !bins.join(b).exists() {

@@ -1,6 +1,7 @@
 //! `pednav-run` — starts and supervises the processes of one pednav run.
 //!
-//! `launch` validates the config (nothing starts on a bad one), prepares the run
+//! `launch` validates the config (nothing starts on a bad one, nor on one whose
+//! estimated memory exceeds the machine's — `check` applies the same), prepares the run
 //! directory (or resumes it), removes stale iceoryx2 resources of this run,
 //! starts the curriculum service, the learner and N actors with their logs in
 //! `<run>/logs/`, restarts an actor that dies, shows a live progress line from
@@ -15,13 +16,14 @@
 
 mod bench;
 mod launch;
+mod soak;
 mod supervisor;
 
 use std::path::PathBuf;
 
 use anyhow::{Context, Result};
 use clap::{Parser, Subcommand};
-use pednav_runtime::RunConfig;
+use pednav_runtime::{MemoryPlan, RunConfig};
 
 #[derive(Parser)]
 #[command(version, about = "Start, supervise and stop the processes of a pednav run")]
@@ -37,10 +39,14 @@ enum Cmd {
     /// Measure the runtime: step-stream throughput, weights latency, whole-system env steps/s.
     #[command(subcommand)]
     Bench(bench::Bench),
-    /// Validate a config file and print the resolved config.
+    /// Validate a config file, estimate the memory the run needs against this
+    /// machine's (on stderr; refused when it cannot fit), and print the resolved config.
     Check {
         /// Config file (TOML).
         config: PathBuf,
+        /// Actor processes the memory estimate assumes (as `launch --actors`).
+        #[arg(long, default_value_t = 2)]
+        actors: u32,
         /// Override one config field, `section.field=value` (repeatable), as `launch --set`.
         #[arg(long = "set", value_name = "FIELD=VALUE")]
         overrides: Vec<String>,
@@ -51,11 +57,12 @@ fn main() -> Result<()> {
     pednav_runtime::init_logging();
     match Cli::parse().command {
         Cmd::Bench(b) => bench::run(b),
-        Cmd::Check { config, overrides } => {
+        Cmd::Check { config, actors, overrides } => {
             let cfg = RunConfig::load_with(&config, &overrides)?;
             launch::check_devices(cfg.runtime.device, cfg.runtime.actor_device).with_context(|| {
                 format!("{}: the config is valid, but its devices cannot be used", config.display())
             })?;
+            launch::check_memory(&cfg, &config.display().to_string(), &MemoryPlan::of(&cfg, actors))?;
             print!("{}", cfg.to_toml());
             eprintln!("{}: valid", config.display());
             Ok(())

@@ -25,9 +25,9 @@ use pednav_runtime::messages::{Heartbeat, process_kind};
 use pednav_runtime::{Ipc, RunConfig, RunDir, StopFlag, run_prefix};
 
 /// A process that dies more than this many times within [`RESTART_WINDOW`] ends the run.
-const MAX_RESTARTS: usize = 5;
+pub(crate) const MAX_RESTARTS: usize = 5;
 /// The window of [`MAX_RESTARTS`].
-const RESTART_WINDOW: Duration = Duration::from_secs(120);
+pub(crate) const RESTART_WINDOW: Duration = Duration::from_secs(120);
 
 /// One supervised child.
 struct Proc {

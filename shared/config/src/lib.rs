@@ -1,7 +1,8 @@
 //! # pednav-config — the settings every pednav process agrees on
 //!
 //! - [`dsac`]: the `[dsac]` section (Table IV);
-//! - [`replay`]: the `[replay]` section and [`FrameKind`], what one stored frame is;
+//! - [`replay`]: the `[replay]` section, [`FrameKind`] (what one stored frame is) and
+//!   [`ReplayFootprint`] (the bytes the replay holds per step and per terminal entry);
 //! - [`curriculum`]: the `[curriculum]` section, its [`Variant`] and the task-value
 //!   net's [`TaskNetConfig`];
 //! - [`category`]: the curriculum's task [`Category`] and its wire code.
@@ -22,4 +23,4 @@ pub use category::Category;
 pub use curriculum::{CurriculumConfig, TaskNetConfig, Variant};
 pub use dsac::DsacConfig;
 pub use error::{ConfigError, Result};
-pub use replay::{FrameKind, ReplayConfig};
+pub use replay::{FrameKind, ReplayConfig, ReplayFootprint};

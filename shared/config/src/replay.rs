@@ -8,9 +8,16 @@ use crate::error::{ConfigError, Result};
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct ReplayConfig {
-    /// |B_N| capacity: steps in the non-terminal ring (Table IV: 1.5e6).
+    /// |B_N| capacity: steps in the non-terminal ring (Table IV: 1.5e6). Each step
+    /// holds its frame plus 25 B ([`ReplayFootprint::ring_step`]: 7,081 B at 84×84).
     pub nonterminal_capacity: usize,
-    /// |B_T| capacity: terminal transitions kept (Table IV: 1.5e6).
+    /// |B_T| capacity: terminal transitions kept (Table IV: 1.5e6). Each entry holds
+    /// its own copy of N_h + 1 frames ([`ReplayFootprint::terminal_entry`]: 120,208 B
+    /// at 84×84, N_h 16), so the paper's capacity is ≈ 168 GiB if filled. The launcher
+    /// sizes both pools at the most a run can fill — min(capacity,
+    /// `runtime.max_env_steps`) ring steps, min(capacity, `runtime.max_env_steps` / 2)
+    /// terminal entries, the capacities when the run is unbounded — and refuses a
+    /// config that cannot fit the machine (`pednav-run check` prints the estimate).
     pub terminal_capacity: usize,
 }
 
@@ -63,6 +70,59 @@ impl FrameKind {
         match *self {
             FrameKind::Pixels { size } => size * size,
             FrameKind::State { dim } => dim,
+        }
+    }
+
+    /// Bytes of one stored frame: a `u8` per pixel, an `f32` per state value.
+    pub fn bytes_per_frame(&self) -> usize {
+        match *self {
+            FrameKind::Pixels { size } => size * size,
+            FrameKind::State { dim } => dim * 4,
+        }
+    }
+}
+
+/// Values of one stored action (speed, turn rate, head yaw); the learner's replay
+/// asserts at compile time that this is `pednav_nets::ACTION_DIM`.
+pub const ACTION_VALUES: usize = 3;
+
+/// Bytes the learner's replay (`pednav_learner::DualReplay`) holds per stored item —
+/// the one definition both the replay's own accounting (`DualReplay::stored_bytes`,
+/// tested equal to these sizes times its counts) and the run's memory estimate
+/// (`pednav-run check`) use, so the two cannot drift.
+///
+/// - A **ring step** (non-terminal pool; every step the learner stores occupies one
+///   slot, first and terminal steps included): its frame, the link to the previous
+///   step of its episode (`u64`), the action that led to it (`ACTION_VALUES` × `f32`),
+///   the reward (`f32`), the terminal flag (`bool`), and its state target
+///   (`state_target_dim` × `f32`, 0 without the state-prediction loss).
+/// - A **terminal entry**: its own copy of the N_h + 1 frames of the transition's
+///   window (so it outlives the ring), the N_h actions and rewards of its history,
+///   and o_t's state target.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct ReplayFootprint {
+    /// Bytes of one slot of the non-terminal ring.
+    pub ring_step: usize,
+    /// Bytes of one entry of the terminal pool.
+    pub terminal_entry: usize,
+}
+
+impl ReplayFootprint {
+    /// Bytes of a ring slot besides its frame and state target: the previous-step link
+    /// (`u64`), the action (`ACTION_VALUES` × `f32`), the reward (`f32`) and the
+    /// terminal flag (`bool`).
+    pub const RING_STEP_EXTRA: usize = 8 + ACTION_VALUES * 4 + 4 + 1;
+    /// Bytes of one history entry of a terminal entry: an action and a reward.
+    pub const HISTORY_ENTRY: usize = ACTION_VALUES * 4 + 4;
+
+    /// The footprint of a replay of frames of `kind`, windows of `history` frames and
+    /// state targets of `state_target_dim` floats (0: none kept).
+    pub fn new(kind: FrameKind, history: usize, state_target_dim: usize) -> ReplayFootprint {
+        let frame = kind.bytes_per_frame();
+        let target = state_target_dim * 4;
+        ReplayFootprint {
+            ring_step: frame + Self::RING_STEP_EXTRA + target,
+            terminal_entry: (history + 1) * frame + history * Self::HISTORY_ENTRY + target,
         }
     }
 }

@@ -25,6 +25,9 @@ pub enum ExperimentError {
     /// The networks failed.
     #[error(transparent)]
     Nets(#[from] pednav_nets::NetError),
+    /// The acting policy failed.
+    #[error("policy: {0}")]
+    Policy(#[source] pednav_sim::PolicyError),
     /// A tensor operation failed.
     #[error(transparent)]
     Candle(#[from] candle_core::Error),

@@ -15,13 +15,13 @@ use std::sync::Arc;
 
 use candle_core::{Device, Tensor};
 use pednav_learner::load_acting;
-use pednav_nets::{DsacNets, NetsConfig, Obs, PolicyStream};
+use pednav_nets::{DsacNets, NetsConfig, Obs};
+use pednav_policy::{ActingPolicy, Sampling, action_rows};
 use pednav_runtime::RunConfig;
-use pednav_sim::draw::{draw_map, enlarge_gray, save_gif, side_by_side};
+use pednav_sim::draw::Film;
 use pednav_sim::oracle::{Oracle, OracleConfig};
-use pednav_sim::{Action, BackendChoice, DiscountedReturn, ObsMode, Pose, SimConfig, SimWorld, VecEnv};
-use rand::{Rng, SeedableRng};
-use rand_chacha::ChaCha8Rng;
+use pednav_sim::policy::{OraclePolicy, RandomPolicy};
+use pednav_sim::{Action, BackendChoice, DiscountedReturn, ObsMode, Policy, Pose, SimConfig, SimWorld, VecEnv};
 
 use crate::error::{ExperimentError, Result};
 use crate::protocol::{EvalTask, YAWS_DEG};
@@ -41,23 +41,23 @@ pub enum PolicyKind {
     Oracle,
 }
 
+/// The evaluator's policy: the learned one (which the diagnosis can watch) or a
+/// reference policy of the simulator.
 // One per evaluator, so the size of the learned variant does not matter.
 #[allow(clippy::large_enum_variant)]
-enum Policy {
-    Learned {
-        nets: DsacNets,
-        cfg: NetsConfig,
-        stream: PolicyStream,
-        deterministic: bool,
-        /// One noise generator per environment, reseeded from each task's seed.
-        noise: Vec<ChaCha8Rng>,
-    },
-    Random(ChaCha8Rng),
-    Oracle(Box<Oracle>),
+enum EvalPolicy {
+    Learned(ActingPolicy),
+    Reference(Box<dyn Policy>),
 }
 
-/// Stream of a task's seed that a sampling policy's noise comes from.
-const POLICY_NOISE_STREAM: u64 = 11;
+impl EvalPolicy {
+    fn as_policy(&mut self) -> &mut dyn Policy {
+        match self {
+            EvalPolicy::Learned(p) => p,
+            EvalPolicy::Reference(p) => p.as_mut(),
+        }
+    }
+}
 
 /// What an [`EpisodeObserver`] sees when a learned policy acts on every environment.
 pub struct Decision<'a> {
@@ -89,9 +89,8 @@ pub trait EpisodeObserver {
 pub struct Evaluator {
     world: Arc<SimWorld>,
     envs: VecEnv,
-    policy: Policy,
+    policy: EvalPolicy,
     gamma: f32,
-    device: Device,
 }
 
 /// Per-environment episode in progress.
@@ -136,41 +135,25 @@ impl Evaluator {
         let obs_mode = if learned { sim.obs_mode } else { ObsMode::StateDebug };
         let world = Arc::new(SimWorld::new(scene, SimConfig { t_max, obs_mode, ..sim.clone() })?);
         let envs_ = VecEnv::new(world.clone(), envs, BackendChoice::from_env().map_err(ExperimentError::Plot)?)?;
-        // Inference runs where the networks were loaded.
-        let device = nets.as_ref().map_or(Device::Cpu, |(_, n)| n.policy.store.device().clone());
         let policy = match kind {
             PolicyKind::Learned { deterministic } => {
                 let (cfg, nets) =
                     nets.ok_or_else(|| ExperimentError::Plot("a learned policy needs a checkpoint".into()))?;
-                Policy::Learned {
-                    stream: PolicyStream::new(&cfg, envs, &device),
-                    nets,
-                    cfg,
-                    deterministic,
-                    // Placeholders: `start` reseeds each from its task before any action.
-                    noise: vec![ChaCha8Rng::seed_from_u64(0); envs],
-                }
+                let sampling = if deterministic { Sampling::Mode } else { Sampling::Sample };
+                EvalPolicy::Learned(ActingPolicy::new(nets, &cfg, envs, sampling))
             }
-            PolicyKind::Random => Policy::Random(ChaCha8Rng::seed_from_u64(seed)),
-            PolicyKind::Oracle => {
-                Policy::Oracle(Box::new(Oracle::plan(&world, OracleConfig { gamma, ..OracleConfig::default() })))
-            }
+            PolicyKind::Random => EvalPolicy::Reference(Box::new(RandomPolicy::new(seed))),
+            PolicyKind::Oracle => EvalPolicy::Reference(Box::new(OraclePolicy::new(Oracle::plan(
+                &world,
+                OracleConfig { gamma, ..OracleConfig::default() },
+            )))),
         };
-        Ok(Evaluator { world, envs: envs_, policy, gamma, device })
-    }
-
-    fn pixels(&self) -> bool {
-        matches!(self.policy, Policy::Learned { .. }) && self.world.config.obs_mode == ObsMode::Pixels
+        Ok(Evaluator { world, envs: envs_, policy, gamma })
     }
 
     fn start(&mut self, e: usize, task: EvalTask, filler: bool, running: &mut [Option<Running>]) -> Result<()> {
         let pose = task.pose();
         self.envs.reset(e, pose, task.seed)?;
-        if let Policy::Learned { noise, .. } = &mut self.policy {
-            // Its own stream of the task's seed (the simulator draws from the seed too).
-            noise[e] = ChaCha8Rng::seed_from_u64(task.seed);
-            noise[e].set_stream(POLICY_NOISE_STREAM);
-        }
         running[e] = Some(Running {
             task,
             filler,
@@ -181,64 +164,47 @@ impl Evaluator {
         Ok(())
     }
 
-    fn first_frames(&mut self, started: &[usize]) -> Result<()> {
-        if started.is_empty() || !self.pixels() {
+    /// The policy begins the episodes just started in `started` (with their first
+    /// frames when it reads frames); a sampling policy's noise is seeded from the task.
+    fn begin(&mut self, started: &[usize], running: &[Option<Running>]) -> Result<()> {
+        if started.is_empty() {
             return Ok(());
         }
-        let frames = self.envs.render()?;
-        if let Policy::Learned { stream, .. } = &mut self.policy {
-            for &e in started {
-                stream.reset(e, &frames.frame(e))?;
-            }
+        let frames = if self.policy.as_policy().needs_frames() {
+            let f = self.envs.render()?;
+            started.iter().map(|&e| Some(f.frame(e))).collect()
+        } else {
+            vec![None; started.len()]
+        };
+        for (&e, frame) in started.iter().zip(frames) {
+            let seed = running[e].as_ref().expect("just started").task.seed;
+            self.policy.as_policy().begin(e, seed, frame.as_deref()).map_err(ExperimentError::Policy)?;
         }
         Ok(())
     }
 
     fn actions(&mut self, watch: Option<(&mut dyn EpisodeObserver, &[Option<EvalTask>])>) -> Result<Vec<Action>> {
         let m = self.envs.num_envs();
-        let poses: Vec<Pose> =
-            if watch.is_some() { (0..m).map(|e| self.envs.pedestrian(e).pose).collect() } else { Vec::new() };
-        Ok(match &mut self.policy {
-            Policy::Random(rng) => (0..m)
-                .map(|_| [rng.random_range(-1.0..1.0), rng.random_range(-1.0..1.0), rng.random_range(-1.0..1.0)])
-                .collect(),
-            Policy::Oracle(o) => (0..m).map(|e| o.best_action(&self.world, self.envs.pedestrian(e))).collect(),
-            Policy::Learned { nets, cfg, stream, deterministic, noise } => {
-                let all: Vec<usize> = (0..m).collect();
-                let pixels = self.world.config.obs_mode == ObsMode::Pixels;
-                // The observation itself is only built when someone watches (pixels
-                // act from the streaming cache).
-                let (f, obs) = if pixels {
-                    let obs = if watch.is_some() { Some(stream.observation(&all)?) } else { None };
-                    (stream.features(nets.acting_encoder(), &all)?, obs)
-                } else {
-                    let s: Vec<f32> = (0..m).flat_map(|e| self.envs.state_obs(e)).collect();
-                    let obs = Obs::State(Tensor::from_vec(s, (m, cfg.state_dim), &self.device)?);
-                    (nets.acting_encoder().encode(&obs)?, Some(obs))
-                };
-                let dist = nets.policy.head(&f)?;
-                let (a, log_probs) = if *deterministic {
-                    (dist.mode()?, None)
-                } else {
-                    let per_env = noise
-                        .iter_mut()
-                        .map(|rng| pednav_nets::heads::standard_normal(rng, 1, &self.device))
-                        .collect::<std::result::Result<Vec<_>, _>>()?;
-                    let sample = dist.sample(&Tensor::cat(&per_env, 0)?)?;
-                    (sample.action, Some(sample.log_prob))
-                };
-                if let (Some((observer, tasks)), Some(obs)) = (watch, &obs) {
-                    observer.decision(&Decision {
-                        obs,
-                        actions: &a,
-                        log_probs: log_probs.as_ref(),
-                        poses: &poses,
-                        tasks,
-                    })?;
-                }
-                a.to_vec2::<f32>()?.into_iter().map(|v| [v[0], v[1], v[2]]).collect()
+        match (&mut self.policy, watch) {
+            (EvalPolicy::Learned(policy), Some((observer, tasks))) => {
+                let poses: Vec<Pose> = (0..m).map(|e| self.envs.pedestrian(e).pose).collect();
+                let d = policy.decide(&self.envs, true)?;
+                let obs = d.obs.as_ref().expect("asked for the observations");
+                observer.decision(&Decision {
+                    obs,
+                    actions: &d.actions,
+                    log_probs: d.log_probs.as_ref(),
+                    poses: &poses,
+                    tasks,
+                })?;
+                Ok(action_rows(&d.actions)?)
             }
-        })
+            (policy, _) => {
+                let mut actions = vec![[0.0; 3]; m];
+                policy.as_policy().act(&self.envs, &mut actions).map_err(ExperimentError::Policy)?;
+                Ok(actions)
+            }
+        }
     }
 
     /// Run every task; `progress` is called with the number of finished episodes.
@@ -265,7 +231,7 @@ impl Evaluator {
             self.start(e, task, filler, &mut running)?;
             started.push(e);
         }
-        self.first_frames(&started)?;
+        self.begin(&started, &running)?;
         while running.iter().any(|r| r.as_ref().is_some_and(|r| !r.filler)) {
             let actions = match observer.as_deref_mut() {
                 Some(o) => {
@@ -276,7 +242,7 @@ impl Evaluator {
                 None => self.actions(None)?,
             };
             let transitions = self.envs.step(&actions)?.to_vec();
-            let pixels = self.pixels();
+            let pixels = self.policy.as_policy().needs_frames();
             let frames: Vec<Vec<u8>> = if pixels {
                 let f = self.envs.render()?;
                 (0..m).map(|e| f.frame(e)).collect()
@@ -310,39 +276,33 @@ impl Evaluator {
                     next += !filler as usize;
                     self.start(e, task, filler, &mut running)?;
                     started.push(e);
-                } else if pixels && let Policy::Learned { stream, .. } = &mut self.policy {
-                    stream.push(e, actions[e], t.reward, &frames[e])?;
+                } else {
+                    let frame = frames.get(e).map(Vec::as_slice);
+                    self.policy.as_policy().observe(e, actions[e], t.reward, frame).map_err(ExperimentError::Policy)?;
                 }
             }
-            self.first_frames(&started)?;
+            self.begin(&started, &running)?;
         }
         Ok(results)
     }
 
-    /// Record one task as a GIF: the ×4 first-person view beside the map with the trajectory.
+    /// Record one task as a GIF: the ×4 first-person view beside the map with the
+    /// trajectory ([`Film`]; a black view for state observations).
     pub fn record_gif(&mut self, task: EvalTask, out: &Path) -> Result<EpisodeResult> {
         if self.envs.num_envs() != 1 {
             return Err(ExperimentError::Plot("record_gif needs an evaluator with one environment".into()));
         }
         let mut running = vec![None];
         self.start(0, task, false, &mut running)?;
-        self.first_frames(&[0])?;
-        let base = draw_map(&self.world.scene, &self.world.map, 4.0);
-        let size = self.world.config.image_size;
-        let mut gif = Vec::new();
+        self.begin(&[0], &running)?;
+        let pixels = self.world.config.obs_mode == ObsMode::Pixels;
+        let mut film = Film::new(&self.world);
+        let mut view = if pixels { Some(self.envs.render()?.frame(0)) } else { None };
         loop {
-            let frame = if self.world.config.obs_mode == ObsMode::Pixels {
-                self.envs.render()?.frame(0)
-            } else {
-                vec![0; (size * size) as usize]
-            };
             let r = running[0].as_ref().expect("running");
-            let mut canvas = base.clone();
             let trail: Vec<(f32, f32)> = r.trajectory.iter().map(|p| (p[0], p[1])).collect();
-            canvas.polyline(&trail, 2.0, [220, 40, 40]);
             let p = self.envs.pedestrian(0);
-            canvas.pose_arrow(Pose { yaw: p.camera_yaw(), ..p.pose }, 2.0, [250, 140, 0]);
-            gif.push(side_by_side(&enlarge_gray(&frame, size, 4), &canvas.image));
+            film.add(view.as_deref(), &trail, Pose { yaw: p.camera_yaw(), ..p.pose });
             let a = self.actions(None)?;
             let t = self.envs.step(&a)?[0];
             let r = running[0].as_mut().expect("running");
@@ -351,7 +311,7 @@ impl Evaluator {
             r.trajectory.push([t.pose.x, t.pose.y]);
             if t.terminated || t.truncated {
                 let done = running[0].take().expect("running");
-                save_gif(&gif, 100, out)?;
+                film.save(out)?;
                 return Ok(EpisodeResult {
                     point: task.point,
                     yaw_deg: task.yaw_deg,
@@ -362,12 +322,8 @@ impl Evaluator {
                     trajectory: done.trajectory,
                 });
             }
-            if self.pixels() {
-                let f = self.envs.render()?.frame(0);
-                if let Policy::Learned { stream, .. } = &mut self.policy {
-                    stream.push(0, a[0], t.reward, &f)?;
-                }
-            }
+            view = if pixels { Some(self.envs.render()?.frame(0)) } else { None };
+            self.policy.as_policy().observe(0, a[0], t.reward, view.as_deref()).map_err(ExperimentError::Policy)?;
         }
     }
 }

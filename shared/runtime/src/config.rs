@@ -4,7 +4,9 @@
 //! Invariant: [`RunConfig::validate`] is the single gate — a config that passes
 //! can be built by every process (same image size, history, observation kind and
 //! network sizes everywhere); one that fails names the file, the dotted field and
-//! the value, before any process starts.
+//! the value, before any process starts. Whether the run fits the machine's memory
+//! depends on the machine and the number of actors, so it is a second check that the
+//! launcher applies after this one (`check` and `launch`): [`crate::memory`].
 
 use std::path::{Path, PathBuf};
 

@@ -6,6 +6,8 @@
 //! - [`ipc`]: the run's iceoryx2 services, opened identically everywhere, under a
 //!   per-run prefix;
 //! - [`config`]: the run configuration and its single validation gate;
+//! - [`memory`]: the memory a run needs, estimated and checked against the machine's
+//!   before anything starts;
 //! - [`rundir`]: the run directory layout (resume, never overwrite);
 //! - [`metrics`]: CSV + TensorBoard scalars;
 //! - [`weights`]: the flat weights message;
@@ -17,6 +19,7 @@ pub mod channels;
 pub mod config;
 pub mod error;
 pub mod ipc;
+pub mod memory;
 pub mod messages;
 pub mod metrics;
 pub mod rundir;
@@ -26,6 +29,7 @@ pub mod weights;
 pub use config::{ActorPolicy, RunConfig, RuntimeConfig};
 pub use error::{Result, RuntimeError};
 pub use ipc::{Ipc, run_prefix};
+pub use memory::{MemoryEstimate, MemoryPlan};
 pub use metrics::{Metrics, TbWriter};
 pub use rundir::RunDir;
 pub use signal::StopFlag;

@@ -6,6 +6,7 @@
 //! it; the length is checked on receipt.
 
 use pednav_nets::DsacNets;
+use pednav_policy::ActingPolicy;
 
 use crate::error::{Result, RuntimeError};
 
@@ -104,9 +105,10 @@ impl WeightsClient {
         self.version
     }
 
-    /// Without blocking: load the newest published weights into `nets` when they are
-    /// newer than the version held, and say so; `None` when there is nothing newer.
-    pub fn refresh(&mut self, nets: &DsacNets) -> Result<Option<NewWeights>> {
+    /// Without blocking: load the newest published weights into `policy` when they
+    /// are newer than the version held (its inference cache is invalidated by the
+    /// load itself), and say so; `None` when there is nothing newer.
+    pub fn refresh(&mut self, policy: &mut ActingPolicy) -> Result<Option<NewWeights>> {
         let mut newest = None;
         while let Some(sample) =
             self.subscriber.receive().map_err(|e| RuntimeError::Message(format!("weights: {e:?}")))?
@@ -118,7 +120,7 @@ impl WeightsClient {
         if h.version <= self.version {
             return Ok(None);
         }
-        load(nets, sample.payload())?;
+        policy.load_weights(|nets| load(nets, sample.payload()))?;
         self.version = h.version;
         let latency_ms = crate::now_ns().saturating_sub(h.published_ns) as f64 / 1e6;
         Ok(Some(NewWeights { version: h.version, latency_ms }))

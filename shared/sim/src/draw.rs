@@ -217,6 +217,66 @@ pub fn draw_map(scene: &Scene, map: &RegionMap, px_per_m: f32) -> MapCanvas {
     canvas
 }
 
+/// An episode film: each frame is the first-person view enlarged ×4 beside the
+/// map with the trajectory so far (red) and the camera's heading (orange) — the
+/// GIFs of `pednav-sim record` and `pednav-eval --gif`.
+pub struct Film {
+    base: MapCanvas,
+    view_size: u32,
+    frames: Vec<RgbImage>,
+}
+
+impl Film {
+    /// Enlargement of the first-person view.
+    const VIEW_SCALE: u32 = 4;
+    /// Map scale in pixels per metre.
+    const MAP_PX_PER_M: f32 = 4.0;
+    /// Display time of one frame.
+    const FRAME_MS: u32 = 100;
+
+    /// An empty film of `world`, whose views are `world.config.image_size` square.
+    pub fn new(world: &crate::SimWorld) -> Film {
+        Film {
+            base: draw_map(&world.scene, &world.map, Self::MAP_PX_PER_M),
+            view_size: world.config.image_size,
+            frames: Vec::new(),
+        }
+    }
+
+    /// Add a frame: `view` (greyscale, `image_size`² bytes; `None` draws a black
+    /// view, e.g. in state mode), the trajectory `trail` so far and the camera's
+    /// pose (`yaw` = the camera's heading).
+    pub fn add(&mut self, view: Option<&[u8]>, trail: &[(f32, f32)], camera: Pose) {
+        let black;
+        let view = match view {
+            Some(v) => v,
+            None => {
+                black = vec![0u8; (self.view_size * self.view_size) as usize];
+                &black
+            }
+        };
+        let mut canvas = self.base.clone();
+        canvas.polyline(trail, 2.0, [220, 40, 40]);
+        canvas.pose_arrow(camera, 2.0, [250, 140, 0]);
+        self.frames.push(side_by_side(&enlarge_gray(view, self.view_size, Self::VIEW_SCALE), &canvas.image));
+    }
+
+    /// Frames so far.
+    pub fn len(&self) -> usize {
+        self.frames.len()
+    }
+
+    /// Whether no frame was added.
+    pub fn is_empty(&self) -> bool {
+        self.frames.is_empty()
+    }
+
+    /// Write the film as a looping GIF.
+    pub fn save(&self, path: &Path) -> Result<()> {
+        save_gif(&self.frames, Self::FRAME_MS, path)
+    }
+}
+
 /// Enlarge a greyscale frame by an integer factor (nearest neighbour) into RGB.
 pub fn enlarge_gray(frame: &[u8], size: u32, factor: u32) -> RgbImage {
     let out = size * factor;

@@ -1,4 +1,8 @@
-//! The one error type of the simulator library.
+//! The error types of the simulator library: [`SimError`] and the renderer's
+//! [`RenderError`] it wraps.
+//!
+//! Invariant: this module imports no other module of the crate (every module
+//! imports it), so it cannot close an import circle.
 
 use std::path::PathBuf;
 
@@ -75,7 +79,7 @@ pub enum SimError {
     },
     /// The renderer failed (no adapter, device loss, readback failure).
     #[error(transparent)]
-    Render(#[from] crate::render::RenderError),
+    Render(#[from] RenderError),
     /// Writing an image or GIF failed.
     #[error("cannot write {path}: {message}")]
     Output {
@@ -84,6 +88,58 @@ pub enum SimError {
         /// The encoder's or file system's message.
         message: String,
     },
+}
+
+/// Errors of the renderer ([`crate::render`], which re-exports this type as
+/// `render::RenderError`). Defined here, with plain-data fields only, so that this
+/// module — which every other one imports — imports none of them.
+#[derive(Debug, thiserror::Error)]
+pub enum RenderError {
+    /// No graphics adapter of the requested backends exists.
+    #[error(
+        "no graphics adapter found for backend `{backend}` (tried: {tried}). On a machine without a GPU install Mesa: \
+         `apt-get install -y libegl1 libegl-mesa0 libgl1-mesa-dri` (OpenGL through EGL, llvmpipe) or \
+         `apt-get install -y mesa-vulkan-drivers libvulkan1` (Vulkan, lavapipe); with a GPU, install its driver"
+    )]
+    NoAdapter {
+        /// The backend choice that was asked for.
+        backend: String,
+        /// The wgpu backends that were searched.
+        tried: String,
+    },
+    /// The adapter refused to create a device.
+    #[error("cannot create a device on adapter {adapter}: {message}")]
+    Device {
+        /// The adapter's name and backend.
+        adapter: String,
+        /// wgpu's message.
+        message: String,
+    },
+    /// More views were asked for than the renderer was built for.
+    #[error("asked to render {asked} views, but the renderer was built for at most {max}")]
+    TooManyViews {
+        /// Views asked for.
+        asked: usize,
+        /// Capacity.
+        max: usize,
+    },
+    /// The atlas would exceed the adapter's texture size limit.
+    #[error(
+        "an atlas of {views} views of {size}×{size} needs {needed} pixels per side, over the adapter limit {limit}"
+    )]
+    AtlasTooLarge {
+        /// Number of views.
+        views: usize,
+        /// View side in pixels.
+        size: u32,
+        /// Needed atlas side.
+        needed: u32,
+        /// Adapter limit.
+        limit: u32,
+    },
+    /// Mapping the readback buffer or waiting for the device failed.
+    #[error("GPU readback failed: {0}")]
+    Readback(String),
 }
 
 /// Result alias of the simulator library.

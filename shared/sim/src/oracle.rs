@@ -20,6 +20,7 @@
 //! Invariant: the value table is computed once per (scene, config) and is read-only.
 
 use crate::pedestrian::{Action, Pedestrian};
+use crate::returns::DiscountedReturn;
 use crate::scene::{Pose, RegionKind};
 use crate::world::SimWorld;
 
@@ -262,20 +263,18 @@ impl Oracle {
     pub fn rollout(&self, world: &SimWorld, start: Pose, t_max: u32) -> Rollout {
         let mut p = Pedestrian::default();
         p.reset(start);
-        let gamma = self.cfg.gamma;
-        let (mut ret, mut discount) = (0.0f32, 1.0f32);
+        let mut ret = DiscountedReturn::new(self.cfg.gamma as f64);
         let mut trajectory = vec![p.pose];
         let mut success = false;
         for _ in 0..t_max {
             let t = p.step(self.best_action(world, &p), world);
-            ret += discount * t.reward;
-            discount *= gamma;
+            ret.add(t.reward);
             trajectory.push(p.pose);
             if t.terminated {
                 success = true;
                 break;
             }
         }
-        Rollout { discounted_return: ret, success, steps: trajectory.len() as u32 - 1, trajectory }
+        Rollout { discounted_return: ret.value() as f32, success, steps: trajectory.len() as u32 - 1, trajectory }
     }
 }

@@ -9,15 +9,17 @@
 //!    `ω = a₁ · ω_max`, head yaw offset `= a₂ · head_max` (absolute, relative to the body);
 //! 2. turn the body by `ω·dt` and walk `v·dt` along the mid-step heading
 //!    `yaw + ω·dt/2`, through the character controller (slides along walls);
-//! 3. reward `r = r_map(region at the new position) + speed·v + collision·[hit]`,
-//!    with `v` the commanded speed (the paper's `r_v = 0.125 v`);
+//! 3. reward `r = r_m(region at the new position) + r_v(v) + r_c(hit)`, with `v`
+//!    the commanded speed — [`Rewards::step_reward`](crate::reward::Rewards::step_reward),
+//!    the paper's reward (terms, values and invariants in [`crate::reward`]);
 //! 4. terminated when the new position is in the goal area; otherwise truncated
 //!    when the step count reaches `t_max`.
 
 use serde::{Deserialize, Serialize};
 
 use crate::config::SimConfig;
-use crate::scene::{Pose, RegionKind, wrap_angle};
+use crate::region_kind::RegionKind;
+use crate::scene::{Pose, wrap_angle};
 use crate::world::SimWorld;
 
 /// An action in [−1, 1]³: (speed, yaw rate, head yaw). Values outside are clipped.
@@ -101,7 +103,6 @@ impl Pedestrian {
     /// Advance one decision step (see the module docs for the order).
     pub fn step(&mut self, action: Action, world: &SimWorld) -> Transition {
         let cfg = &world.config;
-        let rewards = world.scene.rewards();
         let cmd = command_of(action, cfg);
         let turn = cmd.yaw_rate * cfg.dt;
         let heading = self.pose.yaw + 0.5 * turn;
@@ -111,10 +112,7 @@ impl Pedestrian {
         self.head_yaw = cmd.head_yaw;
         self.step += 1;
         let region = world.map.kind_at(mv.x, mv.y);
-        let mut reward = rewards.map_reward(region) + rewards.speed * cmd.speed;
-        if mv.collided {
-            reward += rewards.collision;
-        }
+        let reward = world.scene.rewards().step_reward(region, cmd.speed, mv.collided);
         let terminated = region == RegionKind::Goal;
         let truncated = !terminated && self.step >= cfg.t_max;
         self.done = terminated || truncated;

@@ -6,8 +6,12 @@
 //! the same rule as [`Scene::region_kind_exact`], so the map and the exact
 //! polygon test agree at every cell centre. The renderer's ground texture and the
 //! oracle planner are built from this one grid.
+//!
+//! The map holds data only: which reward a region kind gets is
+//! [`crate::reward`]'s rule, tabulated here once per label for fast look-ups.
 
-use crate::scene::{RegionKind, Scene};
+use crate::region_kind::RegionKind;
+use crate::scene::Scene;
 
 /// One label per cell over the scene's extent.
 #[derive(Debug, Clone)]
@@ -24,8 +28,8 @@ pub struct RegionMap {
     pub ny: usize,
     /// Labels, row-major with row 0 at `y0` (south).
     labels: Vec<u8>,
-    /// Map reward per label.
-    rewards: [f32; 5],
+    /// Map reward per label, tabulated once by [`crate::reward::Rewards::map_reward_table`].
+    rewards: [f32; RegionKind::ALL.len()],
 }
 
 impl RegionMap {
@@ -68,8 +72,7 @@ impl RegionMap {
                 }
             }
         }
-        let r = scene.rewards();
-        let rewards = RegionKind::ALL.map(|k| r.map_reward(k));
+        let rewards = scene.rewards().map_reward_table();
         RegionMap { x0, y0, cell, nx, ny, labels, rewards }
     }
 
@@ -107,7 +110,7 @@ impl RegionMap {
         RegionKind::from_label(self.label(i, j))
     }
 
-    /// Map reward at a point.
+    /// Map reward `r_m` at a point (see [`crate::reward`]).
     #[inline]
     pub fn reward_at(&self, x: f32, y: f32) -> f32 {
         let (i, j) = self.cell_of(x, y);

@@ -15,52 +15,11 @@ use std::path::Path;
 use serde::{Deserialize, Serialize};
 
 use crate::error::{Result, SimError};
+pub use crate::region_kind::RegionKind;
+pub use crate::reward::Rewards;
 
 /// The reference corner crossing (DESIGN §3), compiled into the binary.
 pub const REFERENCE_SCENE_TOML: &str = include_str!("../scenes/corner.toml");
-
-/// What a patch of ground is; decides the per-step map reward and the look.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
-#[serde(rename_all = "snake_case")]
-pub enum RegionKind {
-    /// Carriageway: heavily penalised.
-    Road,
-    /// Sidewalks on the start side and elsewhere.
-    Sidewalk,
-    /// The sidewalk on the goal's side of the road.
-    GoalSidewalk,
-    /// Zebra crossing painted over the road.
-    Zebra,
-    /// Goal area: reaching it ends the episode with the goal reward.
-    Goal,
-}
-
-impl RegionKind {
-    /// All kinds, in label order (`kind as u8` is the label stored in the region map).
-    pub const ALL: [RegionKind; 5] =
-        [RegionKind::Road, RegionKind::Sidewalk, RegionKind::GoalSidewalk, RegionKind::Zebra, RegionKind::Goal];
-
-    /// The label stored in the region map.
-    pub fn label(self) -> u8 {
-        self as u8
-    }
-
-    /// The kind of a region-map label.
-    pub fn from_label(label: u8) -> RegionKind {
-        Self::ALL[label as usize]
-    }
-
-    /// Human-readable name used in logs and legends.
-    pub fn name(self) -> &'static str {
-        match self {
-            RegionKind::Road => "road",
-            RegionKind::Sidewalk => "sidewalk",
-            RegionKind::GoalSidewalk => "goal-side sidewalk",
-            RegionKind::Zebra => "zebra crossing",
-            RegionKind::Goal => "goal",
-        }
-    }
-}
 
 /// Axis along which a pedestrian walks over a zebra crossing; the stripes
 /// alternate along it (each stripe is long across this axis).
@@ -71,39 +30,6 @@ pub enum Axis {
     X,
     /// Walking direction along y.
     Y,
-}
-
-/// Per-step rewards (paper §IV, Fig. 1b): `r = r_map(region) + speed·v + collision`.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct Rewards {
-    /// Map reward on reaching the goal area (terminal). Paper: +15.
-    pub goal: f32,
-    /// Map reward per step on the goal-side sidewalk. Paper: −0.6.
-    pub goal_sidewalk: f32,
-    /// Map reward per step on a zebra crossing. Paper: −0.8.
-    pub zebra: f32,
-    /// Map reward per step on any other sidewalk. Paper: −1.0.
-    pub sidewalk: f32,
-    /// Map reward per step on the road. Paper: −3.
-    pub road: f32,
-    /// Coefficient of the speed reward `speed · v` (v in m/s). Paper: 0.125.
-    pub speed: f32,
-    /// Reward added on a step with a collision. Paper: −3.
-    pub collision: f32,
-}
-
-impl Rewards {
-    /// Map reward of a region kind.
-    pub fn map_reward(&self, kind: RegionKind) -> f32 {
-        match kind {
-            RegionKind::Road => self.road,
-            RegionKind::Sidewalk => self.sidewalk,
-            RegionKind::GoalSidewalk => self.goal_sidewalk,
-            RegionKind::Zebra => self.zebra,
-            RegionKind::Goal => self.goal,
-        }
-    }
 }
 
 /// An axis-aligned rectangle `[x_min, y_min, x_max, y_max]` in metres.
@@ -429,7 +355,7 @@ pub struct SceneSpec {
     /// Height of the generated boundary walls in metres.
     #[serde(default = "default_wall_height")]
     pub wall_height: f32,
-    /// Per-step rewards.
+    /// The reward's numbers (the rules are in [`crate::reward`]).
     pub rewards: Rewards,
     /// Ground regions in paint order: a later region overrides an earlier one where
     /// they overlap. Cells covered by none are road.
@@ -519,19 +445,8 @@ impl Scene {
         if !(spec.wall_height > 0.0 && spec.wall_height.is_finite()) {
             return Err(invalid(origin, "wall_height", format!("{} must be positive", spec.wall_height)));
         }
-        let r = &spec.rewards;
-        for (name, v) in [
-            ("goal", r.goal),
-            ("goal_sidewalk", r.goal_sidewalk),
-            ("zebra", r.zebra),
-            ("sidewalk", r.sidewalk),
-            ("road", r.road),
-            ("speed", r.speed),
-            ("collision", r.collision),
-        ] {
-            if !v.is_finite() {
-                return Err(invalid(origin, &format!("rewards.{name}"), format!("{v} is not finite")));
-            }
+        if let Some((name, v)) = spec.rewards.non_finite_term() {
+            return Err(invalid(origin, &format!("rewards.{name}"), format!("{v} is not finite")));
         }
 
         let mut regions = Vec::with_capacity(spec.regions.len());
@@ -720,7 +635,7 @@ impl Scene {
         &self.spec.validation_points
     }
 
-    /// Region rewards.
+    /// The reward's numbers of this scene (see [`crate::reward`]).
     pub fn rewards(&self) -> &Rewards {
         &self.spec.rewards
     }
@@ -735,6 +650,11 @@ mod tests {
         let s = Scene::reference();
         assert_eq!(s.validation_points().len(), 14);
         assert_eq!(s.obstacles.iter().filter(|o| o.kind == ObstacleKind::Wall).count(), 4);
+    }
+
+    #[test]
+    fn reference_scene_pays_the_papers_rewards() {
+        assert_eq!(Scene::reference().rewards(), &Rewards::PAPER);
     }
 
     #[test]

@@ -17,8 +17,9 @@ use clap::{Parser, Subcommand, ValueEnum};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
-use pednav_sim::draw::{draw_map, enlarge_gray, save_gif, save_gray_png, save_png, side_by_side};
+use pednav_sim::draw::{Film, draw_map, enlarge_gray, save_gray_png, save_png};
 use pednav_sim::oracle::{Oracle, OracleConfig};
+use pednav_sim::policy::{FixedPolicy, OraclePolicy, Policy, RandomPolicy};
 use pednav_sim::{
     Action, BackendChoice, CameraView, Look, Pose, Renderer, RendererConfig, Scene, SimConfig, SimWorld, VecEnv,
 };
@@ -87,8 +88,8 @@ enum Command {
     /// Record an episode as a GIF: the enlarged first-person view beside the map with the trajectory so far.
     Record {
         /// Policy driving the pedestrian.
-        #[arg(long, value_enum, default_value_t = Policy::Oracle)]
-        policy: Policy,
+        #[arg(long, value_enum, default_value_t = PolicyChoice::Oracle)]
+        policy: PolicyChoice,
         /// Start: a validation point index 0–13, or `first` (first task).
         #[arg(long, default_value = "3")]
         start: String,
@@ -122,7 +123,7 @@ enum Command {
 }
 
 #[derive(Clone, Copy, ValueEnum)]
-enum Policy {
+enum PolicyChoice {
     /// Greedy one-step lookahead on the planned values (the oracle).
     Oracle,
     /// Uniform random actions from --seed.
@@ -290,49 +291,45 @@ fn record(
     world: Arc<SimWorld>,
     backend: BackendChoice,
     seed: u64,
-    policy: Policy,
+    choice: PolicyChoice,
     start: Pose,
     steps: u32,
     out: &std::path::Path,
 ) -> Result<()> {
     let mut env = VecEnv::new(world.clone(), 1, backend)?;
     env.reset(0, start, seed)?;
-    let oracle = matches!(policy, Policy::Oracle).then(|| Oracle::plan(&world, OracleConfig::default()));
-    let mut rng = ChaCha8Rng::seed_from_u64(seed);
-    let base = draw_map(&world.scene, &world.map, 4.0);
-    let size = world.config.image_size;
+    let mut policy: Box<dyn Policy> = match choice {
+        PolicyChoice::Oracle => Box::new(OraclePolicy::new(Oracle::plan(&world, OracleConfig::default()))),
+        PolicyChoice::Random => Box::new(RandomPolicy::new(seed)),
+        PolicyChoice::Straight => Box::new(FixedPolicy([1.0, 0.0, 0.0])),
+    };
+    policy.begin(0, seed, None).map_err(anyhow::Error::from_boxed)?;
+    let mut film = Film::new(&world);
     let mut trail = vec![(start.x, start.y)];
-    let mut gif_frames = Vec::new();
     // γ of the oracle's table (Table IV's 0.99), so the returns printed compare.
     let mut ret = pednav_sim::DiscountedReturn::new(OracleConfig::default().gamma as f64);
     let mut pose = start;
     let mut outcome = "step limit";
+    let mut action: [Action; 1] = [[0.0; 3]];
     for _ in 0..=steps {
         let frame = env.render()?.frame(0);
-        let mut canvas = base.clone();
-        canvas.polyline(&trail, 2.0, [220, 40, 40]);
-        canvas.pose_arrow(Pose { yaw: env.pedestrian(0).camera_yaw(), ..pose }, 2.0, [250, 140, 0]);
-        gif_frames.push(side_by_side(&enlarge_gray(&frame, size, 4), &canvas.image));
-        if env.pedestrian(0).done || gif_frames.len() > steps as usize {
+        film.add(Some(&frame), &trail, Pose { yaw: env.pedestrian(0).camera_yaw(), ..pose });
+        if env.pedestrian(0).done || film.len() > steps as usize {
             break;
         }
-        let action: Action = match policy {
-            Policy::Oracle => {
-                oracle.as_ref().expect("planned for the oracle policy").best_action(&world, env.pedestrian(0))
-            }
-            Policy::Random => [rng.random_range(-1.0..1.0), rng.random_range(-1.0..1.0), rng.random_range(-1.0..1.0)],
-            Policy::Straight => [1.0, 0.0, 0.0],
-        };
-        let t = env.step(&[action])?[0];
+        policy.act(&env, &mut action).map_err(anyhow::Error::from_boxed)?;
+        let t = env.step(&action)?[0];
         ret.add(t.reward);
         pose = t.pose;
         trail.push((pose.x, pose.y));
         if t.terminated {
             outcome = "goal reached";
+        } else {
+            policy.observe(0, action[0], t.reward, None).map_err(anyhow::Error::from_boxed)?;
         }
     }
-    save_gif(&gif_frames, 100, out)?;
-    println!("wrote {} ({} frames); {outcome}; discounted return {:.2}", out.display(), gif_frames.len(), ret.value());
+    film.save(out)?;
+    println!("wrote {} ({} frames); {outcome}; discounted return {:.2}", out.display(), film.len(), ret.value());
     Ok(())
 }
 
@@ -385,6 +382,7 @@ fn bench(scene: Scene, backend: BackendChoice, envs: &[usize], seconds: f64) -> 
             println!("adapter: {}", env.renderer().map(|r| r.adapter_description()).unwrap_or_default());
         }
         let mut rng = ChaCha8Rng::seed_from_u64(m as u64);
+        let mut walk = RandomPolicy::new(m as u64);
         for i in 0..m {
             env.reset(i, starts[i % starts.len()], i as u64)?;
         }
@@ -392,9 +390,7 @@ fn bench(scene: Scene, backend: BackendChoice, envs: &[usize], seconds: f64) -> 
         let mut sink = vec![0u8; m * size * size];
         let mut actions = vec![[0.0f32; 3]; m];
         let mut step_all = |env: &mut VecEnv, rng: &mut ChaCha8Rng| -> Result<()> {
-            for a in actions.iter_mut() {
-                *a = [rng.random_range(-1.0..1.0), rng.random_range(-1.0..1.0), rng.random_range(-1.0..1.0)];
-            }
+            walk.act(env, &mut actions).map_err(anyhow::Error::from_boxed)?;
             let done: Vec<bool> = env.step(&actions)?.iter().map(|t| t.terminated || t.truncated).collect();
             for (i, d) in done.into_iter().enumerate() {
                 if d {

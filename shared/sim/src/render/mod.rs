@@ -26,57 +26,8 @@ use wgpu::util::DeviceExt;
 use crate::region_map::RegionMap;
 use crate::scene::Scene;
 
+pub use crate::error::RenderError;
 pub use mesh::SKY_SHADE;
-
-/// Errors of the renderer.
-#[derive(Debug, thiserror::Error)]
-pub enum RenderError {
-    /// No graphics adapter of the requested backends exists.
-    #[error(
-        "no graphics adapter found for backend `{backend}` (tried: {tried}). On a machine without a GPU install Mesa: \
-         `apt-get install -y libegl1 libegl-mesa0 libgl1-mesa-dri` (OpenGL through EGL, llvmpipe) or \
-         `apt-get install -y mesa-vulkan-drivers libvulkan1` (Vulkan, lavapipe); with a GPU, install its driver"
-    )]
-    NoAdapter {
-        /// The backend choice that was asked for.
-        backend: String,
-        /// The wgpu backends that were searched.
-        tried: String,
-    },
-    /// The adapter refused to create a device.
-    #[error("cannot create a device on adapter {adapter}: {message}")]
-    Device {
-        /// The adapter's name and backend.
-        adapter: String,
-        /// wgpu's message.
-        message: String,
-    },
-    /// More views were asked for than the renderer was built for.
-    #[error("asked to render {asked} views, but the renderer was built for at most {max}")]
-    TooManyViews {
-        /// Views asked for.
-        asked: usize,
-        /// Capacity.
-        max: usize,
-    },
-    /// The atlas would exceed the adapter's texture size limit.
-    #[error(
-        "an atlas of {views} views of {size}×{size} needs {needed} pixels per side, over the adapter limit {limit}"
-    )]
-    AtlasTooLarge {
-        /// Number of views.
-        views: usize,
-        /// View side in pixels.
-        size: u32,
-        /// Needed atlas side.
-        needed: u32,
-        /// Adapter limit.
-        limit: u32,
-    },
-    /// Mapping the readback buffer or waiting for the device failed.
-    #[error("GPU readback failed: {0}")]
-    Readback(String),
-}
 
 /// Which wgpu backend to use.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Serialize, serde::Deserialize, clap::ValueEnum)]

@@ -1,0 +1,380 @@
+//! Checkpoints survive interrupted saves and damaged files (issue 18): a save
+//! stopped after each of its filesystem steps, a writer process killed (SIGKILL) at
+//! seeded random moments of repeated saves, and every file of a checkpoint damaged in
+//! turn. Each time the resume loads one whole generation — the weights are exactly
+//! those of one save, never a mixture — names the damaged file, and the next save works.
+
+mod common;
+use common::small;
+
+use std::io::{BufRead, BufReader};
+use std::path::{Path, PathBuf};
+use std::process::{Command, Stdio};
+use std::sync::{Arc, Mutex, mpsc};
+use std::time::Duration;
+
+use candle_core::Device;
+use pednav_learner::checkpoint::save_checkpoint_interrupted;
+use pednav_learner::{
+    CheckpointMeta, Dsac, checkpoint_exists, load_checkpoint, load_checkpoint_or_previous, previous_generation,
+    save_checkpoint,
+};
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+use serde_json::json;
+
+/// The learner saved as generation `g`: weights from one of four seeds (`g` mod 4),
+/// `g` updates; [`save`] labels the checkpoint `g` in its `extra`.
+fn generation(g: u64) -> Dsac {
+    let (cfg, nets) = small();
+    let mut d = Dsac::new(&cfg, &nets, &Device::Cpu, 1000 + g % 4).unwrap();
+    d.updates = g;
+    d
+}
+
+/// A learner that has loaded nothing yet.
+fn fresh() -> Dsac {
+    let (cfg, nets) = small();
+    Dsac::new(&cfg, &nets, &Device::Cpu, 9).unwrap()
+}
+
+fn label(g: u64) -> serde_json::Value {
+    json!({ "generation": g })
+}
+
+fn save(ck: &Path, g: u64) {
+    save_checkpoint(ck, &mut generation(g), None, label(g)).unwrap();
+}
+
+fn all_values(d: &Dsac) -> Vec<Vec<f32>> {
+    let mut out = Vec::new();
+    for store in d.nets.stores().into_iter().chain([&d.log_alpha]) {
+        for (_, v) in store.vars() {
+            out.push(v.flatten_all().unwrap().to_vec1().unwrap());
+        }
+    }
+    out
+}
+
+/// The generation `d` was loaded from (`meta`), after checking that its counters and
+/// every weight are exactly that generation's.
+fn loaded_generation(d: &Dsac, meta: &CheckpointMeta) -> u64 {
+    let g = meta.extra["generation"].as_u64().expect("a labelled generation");
+    assert_eq!((meta.updates, d.updates), (g, g), "the counters of generation {g}");
+    assert!(all_values(d) == all_values(&generation(g)), "the weights of generation {g}, exactly");
+    g
+}
+
+/// The generation of the checkpoint folder `dir` on its own (no fallback).
+fn generation_in(dir: &Path) -> u64 {
+    let mut d = fresh();
+    let meta = load_checkpoint(dir, &mut d).unwrap_or_else(|e| panic!("{}: {e}", dir.display()));
+    loaded_generation(&d, &meta)
+}
+
+fn partial(ck: &Path) -> PathBuf {
+    PathBuf::from(format!("{}.tmp", ck.display()))
+}
+
+fn scratch(name: &str) -> PathBuf {
+    let dir = std::env::temp_dir().join(format!("pednav-ckpt-{name}-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    dir
+}
+
+fn files_of(dir: &Path) -> Vec<PathBuf> {
+    let mut files: Vec<_> = std::fs::read_dir(dir).unwrap().map(|e| e.unwrap().path()).collect();
+    files.sort();
+    files
+}
+
+/// The start states of the interrupted save: what is on disk, and which generations
+/// a resume may load once a save of generation 3 has been stopped anywhere.
+const STARTS: [(&str, &[u64]); 3] =
+    [("one generation (1)", &[1, 3]), ("two generations (1, 2)", &[2, 3]), ("the newest (2) damaged", &[1, 3])];
+
+fn set_up(start: usize, ck: &Path) {
+    save(ck, 1);
+    if start >= 1 {
+        save(ck, 2);
+    }
+    if start == 2 {
+        let file = ck.join("quantile.safetensors");
+        let mut bytes = std::fs::read(&file).unwrap();
+        let mid = bytes.len() / 2;
+        bytes[mid] ^= 0x5a;
+        std::fs::write(&file, bytes).unwrap();
+    }
+}
+
+/// A save stopped after each of its filesystem steps in turn (the state a kill there
+/// leaves): the resume finds a checkpoint and loads one whole generation — the one
+/// that was there or the new one — and the next save (over whatever the stop left,
+/// a partial `<dir>.tmp` included) works, keeping what was loaded as the previous
+/// generation. From a damaged newest, the good previous generation is never lost.
+#[test]
+fn a_save_stopped_after_any_step_resumes_from_a_whole_generation() {
+    let root = scratch("steps");
+    for (start, (name, allowed)) in STARTS.iter().enumerate() {
+        let mut steps = Vec::new();
+        for k in 0.. {
+            let ck = root.join(format!("{start}-{k}")).join("learner");
+            std::fs::create_dir_all(ck.parent().unwrap()).unwrap();
+            set_up(start, &ck);
+            let run = save_checkpoint_interrupted(&ck, &mut generation(3), None, label(3), k).unwrap();
+            let at = format!("{name}, stopped after {k} steps {:?}", run.steps);
+            assert!(run.finished || run.steps.len() == k, "{at}");
+            assert!(checkpoint_exists(&ck), "{at}: the resume finds no checkpoint");
+            let mut d = fresh();
+            let (meta, loaded) =
+                load_checkpoint_or_previous(&ck, &mut d).unwrap_or_else(|e| panic!("{at}: cannot resume: {e}"));
+            let g = loaded_generation(&d, &meta);
+            assert!(allowed.contains(&g), "{at}: loaded generation {g}");
+            if run.finished {
+                assert_eq!((g, &loaded), (3, &ck), "{at}");
+            }
+            // A kill in the middle of writing a file leaves it part-written in the
+            // partial folder: the next save must clear that too.
+            if partial(&ck).is_dir() {
+                for file in files_of(&partial(&ck)) {
+                    let bytes = std::fs::read(&file).unwrap();
+                    std::fs::write(&file, &bytes[..bytes.len() / 2]).unwrap();
+                }
+            }
+            save(&ck, 4);
+            let mut d = fresh();
+            let (meta, loaded) = load_checkpoint_or_previous(&ck, &mut d).unwrap();
+            assert_eq!((loaded_generation(&d, &meta), &loaded), (4, &ck), "{at}: the next save");
+            assert_eq!(generation_in(&previous_generation(&ck)), g, "{at}: the next save keeps what was loaded");
+            assert!(!partial(&ck).exists(), "{at}: the next save leaves no partial folder");
+            std::fs::remove_dir_all(ck.parent().unwrap()).unwrap();
+            if run.finished {
+                steps = run.steps;
+                break;
+            }
+        }
+        eprintln!("{name}: stopped after each of {} steps:\n  {}", steps.len(), steps.join("\n  "));
+        assert!(steps.len() >= 10, "{name}: {steps:?}");
+        assert!(steps.iter().any(|s| s.starts_with("rename")), "{steps:?}");
+    }
+    let _ = std::fs::remove_dir_all(&root);
+}
+
+/// Ways of damaging a file: a few bytes in the middle changed (flipped, replaced by
+/// digits, or one number's last digit changed, which keeps a JSON file valid), cut to
+/// half its length, or removed.
+const DAMAGE: [&str; 5] = ["flip 4 bytes", "digits over 4 bytes", "one digit", "truncate to half", "remove"];
+
+fn damage(file: &Path, how: &str) {
+    let mut bytes = std::fs::read(file).unwrap();
+    let mid = bytes.len() / 2;
+    match how {
+        "flip 4 bytes" => bytes[mid..mid + 4].iter_mut().for_each(|b| *b ^= 0x5a),
+        "digits over 4 bytes" => {
+            let digits: &[u8] = if &bytes[mid..mid + 4] == b"7777" { b"8888" } else { b"7777" };
+            bytes[mid..mid + 4].copy_from_slice(digits);
+        }
+        // The last digit of the number nearest the middle: JSON stays valid and of
+        // the same types (a digit lowered, or 0 → 1), only a checksum can tell.
+        "one digit" => {
+            let last_digit = |i: usize| bytes[i].is_ascii_digit() && !bytes.get(i + 1).is_some_and(u8::is_ascii_digit);
+            let at = (0..bytes.len()).filter(|&i| last_digit(i)).min_by_key(|&i| i.abs_diff(mid)).unwrap_or(mid);
+            bytes[at] = if bytes[at] == b'0' { b'1' } else { b'0' };
+        }
+        "truncate to half" => bytes.truncate(mid),
+        "remove" => return std::fs::remove_file(file).unwrap(),
+        _ => unreachable!(),
+    }
+    std::fs::write(file, bytes).unwrap();
+}
+
+/// Every file of the newest checkpoint damaged in turn, each way: the resume falls
+/// back to the previous generation with a warning naming the damaged file; the same
+/// file damaged in both generations: the error names both. Damage in the previous
+/// generation alone changes nothing. A save after a fallback keeps the good previous
+/// generation (not the damaged newest), so the next damage still finds it.
+#[test]
+fn every_damaged_file_falls_back_to_the_previous_generation_and_is_named() {
+    let root = scratch("damage");
+    let ck = root.join("learner");
+    let prev = previous_generation(&ck);
+    save(&ck, 1);
+    save(&ck, 2);
+    let files = files_of(&ck);
+    let names: Vec<_> = files.iter().map(|f| f.file_name().unwrap().to_str().unwrap()).collect();
+    for expected in ["state.json", "optimizer.safetensors", "policy.safetensors", "log_alpha.safetensors"] {
+        assert!(names.contains(&expected), "{names:?}");
+    }
+    assert!(files.len() >= 7, "state, four networks' online and target stores, α, moments: {names:?}");
+    for file in &files {
+        let kept = std::fs::read(file).unwrap();
+        let prev_file = prev.join(file.file_name().unwrap());
+        let prev_kept = std::fs::read(&prev_file).unwrap();
+        for how in DAMAGE {
+            let at = format!("{} ({how})", file.display());
+            damage(file, how);
+            let mut d = fresh();
+            let (resumed, warnings) = logged_warnings(|| load_checkpoint_or_previous(&ck, &mut d));
+            let (meta, loaded) = resumed.unwrap_or_else(|e| panic!("{at}: {e}"));
+            assert_eq!((loaded_generation(&d, &meta), &loaded), (1, &prev), "{at}");
+            assert!(
+                warnings.len() == 1 && warnings[0].contains(&file.display().to_string()),
+                "{at}: the warning names the file: {warnings:?}"
+            );
+            damage(&prev_file, how);
+            let err = load_checkpoint_or_previous(&ck, &mut fresh()).map(|_| ()).unwrap_err().to_string();
+            for named in [file, &prev_file] {
+                assert!(err.contains(&named.display().to_string()), "{at}: the error names {}: {err}", named.display());
+            }
+            std::fs::write(file, &kept).unwrap();
+            std::fs::write(&prev_file, &prev_kept).unwrap();
+        }
+        damage(&prev_file, "flip 4 bytes");
+        let mut d = fresh();
+        let (resumed, warnings) = logged_warnings(|| load_checkpoint_or_previous(&ck, &mut d));
+        let (meta, loaded) = resumed.unwrap();
+        assert_eq!((loaded_generation(&d, &meta), &loaded, warnings.len()), (2, &ck, 0), "{}", prev_file.display());
+        std::fs::write(&prev_file, &prev_kept).unwrap();
+    }
+
+    // A resume fell back to generation 1 (2 is damaged); the next save replaces the
+    // damaged one, saying so, and keeps 1 as the previous generation.
+    let quantile = ck.join("quantile.safetensors");
+    damage(&quantile, "flip 4 bytes");
+    let ((), warnings) = logged_warnings(|| save(&ck, 3));
+    assert!(warnings.len() == 1 && warnings[0].contains(&quantile.display().to_string()), "{warnings:?}");
+    assert_eq!((generation_in(&ck), generation_in(&prev)), (3, 1));
+    damage(&ck.join("state.json"), "truncate to half");
+    let mut d = fresh();
+    let (meta, loaded) = load_checkpoint_or_previous(&ck, &mut d).unwrap();
+    assert_eq!((loaded_generation(&d, &meta), &loaded), (1, &prev));
+    let _ = std::fs::remove_dir_all(&root);
+}
+
+/// State files written before they carried their own checksum (format 1) still load;
+/// a format-2 state file whose checksum field is gone is refused.
+#[test]
+fn state_files_of_format_1_still_load_and_a_missing_state_checksum_is_refused() {
+    let root = scratch("format");
+    let ck = root.join("learner");
+    save(&ck, 1);
+    let state = ck.join("state.json");
+    let text = std::fs::read_to_string(&state).unwrap();
+    let (body, _) = text.rsplit_once(",\n  \"state_crc32\": ").expect("the state file's checksum is its last field");
+    std::fs::write(&state, format!("{body}\n}}")).unwrap();
+    let err = load_checkpoint(&ck, &mut fresh()).unwrap_err().to_string();
+    assert!(err.contains("state.json") && err.contains("checksum field is missing"), "{err}");
+    let old = body.replacen("\"format\": 2,", "\"format\": 1,", 1);
+    assert_ne!(old, body);
+    std::fs::write(&state, format!("{old}\n}}")).unwrap();
+    assert_eq!(generation_in(&ck), 1);
+    let _ = std::fs::remove_dir_all(&root);
+}
+
+const WRITER_DIR: &str = "PEDNAV_TEST_CHECKPOINT_WRITER_DIR";
+const WRITER_FROM: &str = "PEDNAV_TEST_CHECKPOINT_WRITER_FROM";
+
+/// Not a test on its own: the writer process of
+/// [`a_writer_killed_during_saves_resumes_from_a_whole_generation`] (this test binary
+/// run again with [`WRITER_DIR`] set), saving generation after generation until killed.
+#[test]
+fn checkpoint_writer_process() {
+    let Ok(dir) = std::env::var(WRITER_DIR) else { return };
+    let from: u64 = std::env::var(WRITER_FROM).unwrap().parse().unwrap();
+    let mut learners: Vec<Dsac> = (0..4).map(generation).collect();
+    for g in from.. {
+        let d = &mut learners[(g % 4) as usize];
+        d.updates = g;
+        save_checkpoint(Path::new(&dir), d, None, label(g)).unwrap();
+        println!("saved {g}");
+    }
+}
+
+/// A process saving checkpoints back to back, killed with SIGKILL at a seeded random
+/// moment, 16 times over the same folder (each writer starting over what the last kill
+/// left): every time the resume loads a whole generation, the last one reported saved
+/// or the one after it — nothing but the save in progress is lost.
+#[test]
+fn a_writer_killed_during_saves_resumes_from_a_whole_generation() {
+    let root = scratch("kill");
+    let ck = root.join("learner");
+    let mut rng = ChaCha8Rng::seed_from_u64(18);
+    let (mut from, mut mid_save) = (1u64, 0);
+    for round in 0..16 {
+        let mut child = Command::new(std::env::current_exe().unwrap())
+            .args(["checkpoint_writer_process", "--exact", "--nocapture", "--test-threads=1"])
+            .env(WRITER_DIR, &ck)
+            .env(WRITER_FROM, from.to_string())
+            .stdout(Stdio::piped())
+            .stderr(Stdio::null())
+            .spawn()
+            .unwrap();
+        let out = BufReader::new(child.stdout.take().unwrap());
+        let (tx, rx) = mpsc::channel();
+        std::thread::spawn(move || {
+            for line in out.lines().map_while(Result::ok) {
+                if let Some((_, g)) = line.split_once("saved ") {
+                    let _ = tx.send(g.trim().parse::<u64>().unwrap());
+                }
+            }
+        });
+        let first = rx.recv_timeout(Duration::from_secs(120)).expect("the writer saves");
+        std::thread::sleep(Duration::from_micros(rng.random_range(0..30_000)));
+        child.kill().unwrap();
+        child.wait().unwrap();
+        let last = rx.iter().last().unwrap_or(first);
+        let at = format!("kill {round}, after generation {last} was reported saved");
+        if partial(&ck).exists() || !ck.exists() {
+            mid_save += 1;
+        }
+        assert!(checkpoint_exists(&ck), "{at}");
+        let mut d = fresh();
+        let (meta, _) = load_checkpoint_or_previous(&ck, &mut d).unwrap_or_else(|e| panic!("{at}: {e}"));
+        let g = loaded_generation(&d, &meta);
+        assert!(g == last || g == last + 1, "{at}: loaded generation {g}");
+        from = last + 2;
+    }
+    eprintln!("16 kills, {mid_save} of them with a save's partial folder or rotation on disk");
+    let _ = std::fs::remove_dir_all(&root);
+}
+
+/// The warnings logged on this thread while `f` runs, each as its fields' text.
+fn logged_warnings<T>(f: impl FnOnce() -> T) -> (T, Vec<String>) {
+    let seen = Arc::new(Mutex::new(Vec::new()));
+    let out = tracing::subscriber::with_default(Warnings(seen.clone()), f);
+    let seen = seen.lock().unwrap().clone();
+    (out, seen)
+}
+
+struct Warnings(Arc<Mutex<Vec<String>>>);
+
+impl tracing::Subscriber for Warnings {
+    fn register_callsite(&self, _: &'static tracing::Metadata<'static>) -> tracing::subscriber::Interest {
+        tracing::subscriber::Interest::sometimes()
+    }
+    fn enabled(&self, metadata: &tracing::Metadata<'_>) -> bool {
+        *metadata.level() <= tracing::Level::WARN
+    }
+    fn new_span(&self, _: &tracing::span::Attributes<'_>) -> tracing::span::Id {
+        tracing::span::Id::from_u64(1)
+    }
+    fn record(&self, _: &tracing::span::Id, _: &tracing::span::Record<'_>) {}
+    fn record_follows_from(&self, _: &tracing::span::Id, _: &tracing::span::Id) {}
+    fn event(&self, event: &tracing::Event<'_>) {
+        let mut text = String::new();
+        event.record(&mut Fields(&mut text));
+        self.0.lock().unwrap().push(text);
+    }
+    fn enter(&self, _: &tracing::span::Id) {}
+    fn exit(&self, _: &tracing::span::Id) {}
+}
+
+struct Fields<'a>(&'a mut String);
+
+impl tracing::field::Visit for Fields<'_> {
+    fn record_debug(&mut self, field: &tracing::field::Field, value: &dyn std::fmt::Debug) {
+        use std::fmt::Write;
+        let _ = write!(self.0, "{}={value:?} ", field.name());
+    }
+}

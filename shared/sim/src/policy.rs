@@ -1,0 +1,158 @@
+//! Who chooses the actions: the one [`Policy`] trait every acting loop drives —
+//! the actors, the evaluator and `pednav-sim record` — and the reference
+//! policies that need nothing but the simulator: [`RandomPolicy`] (the random-walk
+//! baseline of Table III), [`OraclePolicy`] (the planner's greedy action) and
+//! [`FixedPolicy`] (one action always, for looking at the renderer). The learned
+//! policy (`pednav_policy::ActingPolicy`) implements the same trait.
+//!
+//! The protocol, for a batch of environments in a [`VecEnv`]: after
+//! `VecEnv::reset(e, …)` the loop calls [`Policy::begin`] with the episode's seed
+//! (and its first frame when [`Policy::needs_frames`]); every step it calls
+//! [`Policy::act`] once for all environments, steps them, and calls
+//! [`Policy::observe`] for each environment whose episode goes on.
+//!
+//! Invariant: a policy's actions depend only on what it was shown through these
+//! calls (and, for the learned policy, its weights): no policy reads hidden state
+//! of the loop, so the same calls give the same actions in any loop.
+
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+
+use crate::env::VecEnv;
+use crate::oracle::Oracle;
+use crate::pedestrian::Action;
+
+/// The error a policy reports (a learned policy's tensor errors, for one).
+pub type PolicyError = Box<dyn std::error::Error + Send + Sync>;
+
+/// Chooses one action per environment of a [`VecEnv`].
+pub trait Policy {
+    /// Whether the policy reads rendered frames; the loop renders only for such
+    /// a policy and passes each environment's frame to `begin` and `observe`.
+    fn needs_frames(&self) -> bool {
+        false
+    }
+
+    /// Environment `env` starts an episode with seed `seed` (the one passed to
+    /// `VecEnv::reset`); `frame` is its first view when [`Policy::needs_frames`].
+    fn begin(&mut self, env: usize, seed: u64, frame: Option<&[u8]>) -> Result<(), PolicyError> {
+        let _ = (env, seed, frame);
+        Ok(())
+    }
+
+    /// Environment `env` took `action`, received `reward` and its episode goes on;
+    /// `frame` is its new view when [`Policy::needs_frames`].
+    fn observe(&mut self, env: usize, action: Action, reward: f32, frame: Option<&[u8]>) -> Result<(), PolicyError> {
+        let _ = (env, action, reward, frame);
+        Ok(())
+    }
+
+    /// One action per environment of `envs` into `actions` (every environment is
+    /// in an episode).
+    fn act(&mut self, envs: &VecEnv, actions: &mut [Action]) -> Result<(), PolicyError>;
+}
+
+/// Every action component uniform in [−1, 1): the random walk.
+pub struct RandomPolicy {
+    rng: ChaCha8Rng,
+}
+
+impl RandomPolicy {
+    /// A random walk drawing from its own generator seeded with `seed`.
+    pub fn new(seed: u64) -> RandomPolicy {
+        RandomPolicy { rng: ChaCha8Rng::seed_from_u64(seed) }
+    }
+
+    /// A random walk drawing from `rng`.
+    pub fn from_rng(rng: ChaCha8Rng) -> RandomPolicy {
+        RandomPolicy { rng }
+    }
+}
+
+impl Policy for RandomPolicy {
+    fn act(&mut self, _envs: &VecEnv, actions: &mut [Action]) -> Result<(), PolicyError> {
+        for a in actions.iter_mut() {
+            *a = std::array::from_fn(|_| self.rng.random_range(-1.0..1.0));
+        }
+        Ok(())
+    }
+}
+
+/// The oracle planner's greedy action ([`Oracle::best_action`]) in every environment.
+pub struct OraclePolicy {
+    oracle: Oracle,
+}
+
+impl OraclePolicy {
+    /// Acts greedily on `oracle`'s planned values (planned on the world the
+    /// environments run in).
+    pub fn new(oracle: Oracle) -> OraclePolicy {
+        OraclePolicy { oracle }
+    }
+}
+
+impl Policy for OraclePolicy {
+    fn act(&mut self, envs: &VecEnv, actions: &mut [Action]) -> Result<(), PolicyError> {
+        let world = envs.world();
+        for (e, a) in actions.iter_mut().enumerate() {
+            *a = self.oracle.best_action(world, envs.pedestrian(e));
+        }
+        Ok(())
+    }
+}
+
+/// The same action in every environment at every step.
+pub struct FixedPolicy(pub Action);
+
+impl Policy for FixedPolicy {
+    fn act(&mut self, _envs: &VecEnv, actions: &mut [Action]) -> Result<(), PolicyError> {
+        actions.fill(self.0);
+        Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use std::sync::Arc;
+
+    use super::*;
+    use crate::oracle::OracleConfig;
+    use crate::{BackendChoice, ObsMode, Pose, Scene, SimConfig, SimWorld};
+
+    fn envs(m: usize) -> VecEnv {
+        let world =
+            SimWorld::new(Scene::reference(), SimConfig { obs_mode: ObsMode::StateDebug, ..SimConfig::default() })
+                .expect("reference scene");
+        let mut envs = VecEnv::new(Arc::new(world), m, BackendChoice::Auto).expect("no renderer in state mode");
+        let p = envs.world().scene.validation_points()[0];
+        for e in 0..m {
+            envs.reset(e, Pose::from_degrees(p.x, p.y, p.favourable_yaw_deg), e as u64).unwrap();
+        }
+        envs
+    }
+
+    #[test]
+    fn random_actions_are_in_range_and_seeded() {
+        let envs = envs(3);
+        let (mut a, mut b) = (RandomPolicy::new(7), RandomPolicy::new(7));
+        let (mut x, mut y) = (vec![[0.0; 3]; 3], vec![[0.0; 3]; 3]);
+        for _ in 0..50 {
+            a.act(&envs, &mut x).unwrap();
+            b.act(&envs, &mut y).unwrap();
+            assert_eq!(x, y);
+            assert!(x.iter().flatten().all(|v| (-1.0..1.0).contains(v)));
+        }
+    }
+
+    #[test]
+    fn oracle_policy_is_the_planners_greedy_action() {
+        let envs = envs(2);
+        let oracle = Oracle::plan(envs.world(), OracleConfig::default());
+        let expected: Vec<Action> = (0..2).map(|e| oracle.best_action(envs.world(), envs.pedestrian(e))).collect();
+        let mut policy = OraclePolicy::new(oracle);
+        let mut got = vec![[9.0; 3]; 2];
+        policy.act(&envs, &mut got).unwrap();
+        assert_eq!(got, expected);
+        assert!(!policy.needs_frames());
+    }
+}
