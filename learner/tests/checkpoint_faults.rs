@@ -5,7 +5,7 @@
 //! those of one save, never a mixture — names the damaged file, and the next save works.
 
 mod common;
-use common::small;
+use common::{all_values, small};
 
 use std::io::{BufRead, BufReader};
 use std::path::{Path, PathBuf};
@@ -44,16 +44,6 @@ fn label(g: u64) -> serde_json::Value {
 
 fn save(ck: &Path, g: u64) {
     save_checkpoint(ck, &mut generation(g), None, label(g)).unwrap();
-}
-
-fn all_values(d: &Dsac) -> Vec<Vec<f32>> {
-    let mut out = Vec::new();
-    for store in d.nets.stores().into_iter().chain([&d.log_alpha]) {
-        for (_, v) in store.vars() {
-            out.push(v.flatten_all().unwrap().to_vec1().unwrap());
-        }
-    }
-    out
 }
 
 /// The generation `d` was loaded from (`meta`), after checking that its counters and

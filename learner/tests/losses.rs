@@ -1,7 +1,7 @@
 //! Losses, the temperature update and checkpoints against hand-computed values.
 
 mod common;
-use common::small;
+use common::{all_values, small};
 
 use candle_core::{Device, Tensor};
 use pednav_learner::{
@@ -272,16 +272,6 @@ fn state_prediction_loss_by_hand_and_it_shapes_the_critic_encoder() {
     bare.state_target = None;
     let err = aux.update(&bare).unwrap_err().to_string();
     assert!(err.contains("state targets"), "{err}");
-}
-
-fn all_values(d: &Dsac) -> Vec<Vec<f32>> {
-    let mut out = Vec::new();
-    for store in d.nets.stores().into_iter().chain([&d.log_alpha]) {
-        for (_, v) in store.vars() {
-            out.push(v.flatten_all().unwrap().to_vec1().unwrap());
-        }
-    }
-    out
 }
 
 #[test]

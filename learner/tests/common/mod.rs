@@ -1,6 +1,6 @@
 //! Test support shared by the learner's integration tests.
 
-use pednav_learner::DsacConfig;
+use pednav_learner::{Dsac, DsacConfig};
 use pednav_nets::{EncoderKind, NetsConfig};
 
 /// A DSAC agent small enough to update in microseconds: one critic, a 4-float state
@@ -18,4 +18,16 @@ pub fn small() -> (DsacConfig, NetsConfig) {
             ..Default::default()
         },
     )
+}
+
+/// Every parameter of the agent (networks and log α), store by store, as flat vectors:
+/// two agents hold the same weights exactly when these are equal.
+pub fn all_values(d: &Dsac) -> Vec<Vec<f32>> {
+    let mut out = Vec::new();
+    for store in d.nets.stores().into_iter().chain([&d.log_alpha]) {
+        for (_, v) in store.vars() {
+            out.push(v.flatten_all().unwrap().to_vec1().unwrap());
+        }
+    }
+    out
 }
