@@ -264,11 +264,9 @@ impl ActorProcess {
             let Some(bytes) = self.steps.send(header, observation(frames.as_ref(), &states, e))? else {
                 return Ok(false);
             };
-            let policy: &mut dyn Policy = match &mut self.random {
-                Some(random) => random,
-                None => &mut self.learned,
-            };
-            policy.begin(e, ep.seed, self.pixels.then_some(&bytes[..])).map_err(anyhow::Error::from_boxed)?;
+            acting(&mut self.random, &mut self.learned)
+                .begin(e, ep.seed, self.pixels.then_some(&bytes[..]))
+                .map_err(anyhow::Error::from_boxed)?;
             self.counters.sent(&header, &bytes);
         }
         drop(frames);
@@ -284,14 +282,12 @@ impl ActorProcess {
     }
 
     fn choose_actions(&mut self) -> Result<()> {
-        match &mut self.random {
-            Some(random) => random.act(&self.envs, &mut self.actions),
-            None => {
-                self.versions_used.insert(self.weights.version());
-                self.learned.act(&self.envs, &mut self.actions)
-            }
+        if self.random.is_none() {
+            self.versions_used.insert(self.weights.version());
         }
-        .map_err(anyhow::Error::from_boxed)
+        acting(&mut self.random, &mut self.learned)
+            .act(&self.envs, &mut self.actions)
+            .map_err(anyhow::Error::from_boxed)
     }
 
     /// Step and render every environment, send each step, report finished episodes.
@@ -333,11 +329,7 @@ impl ActorProcess {
                 return Ok(false);
             };
             if !(t.terminated || t.truncated) {
-                let policy: &mut dyn Policy = match &mut self.random {
-                    Some(random) => random,
-                    None => &mut self.learned,
-                };
-                policy
+                acting(&mut self.random, &mut self.learned)
                     .observe(e, self.actions[e], t.reward, self.pixels.then_some(&bytes[..]))
                     .map_err(anyhow::Error::from_boxed)?;
             }
@@ -436,6 +428,14 @@ impl ActorProcess {
         self.dir.write_stats(&format!("{}.{}", self.name, self.incarnation), &self.stats_json(status))?;
         tracing::info!(steps = self.counters.steps, episodes = self.counters.episodes, status, "actor finished");
         Ok(())
+    }
+}
+
+/// The policy that acts: the random walk when the run asks for it, else the learned one.
+fn acting<'a>(random: &'a mut Option<RandomPolicy>, learned: &'a mut ActingPolicy) -> &'a mut dyn Policy {
+    match random {
+        Some(random) => random,
+        None => learned,
     }
 }
 
