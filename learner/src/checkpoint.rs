@@ -335,14 +335,19 @@ fn save_steps(
 fn verify_files(dir: &Path) -> Result<()> {
     let meta = read_meta(dir)?;
     for (file, want) in &meta.checksums {
-        let path = dir.join(file);
-        let got = crc_of(&path)?;
-        if got != *want {
-            return Err(ck_err(
-                &path,
-                format!("checksum mismatch (file {got:08x}, state file {want:08x}): the file is corrupted"),
-            ));
-        }
+        verify_file(&dir.join(file), *want)?;
+    }
+    Ok(())
+}
+
+/// Check that the file at `path` has the CRC-32 `want` the state file recorded for it.
+fn verify_file(path: &Path, want: u32) -> Result<()> {
+    let got = crc_of(path)?;
+    if got != want {
+        return Err(ck_err(
+            path,
+            format!("checksum mismatch (file {got:08x}, state file {want:08x}): the file is corrupted"),
+        ));
     }
     Ok(())
 }
@@ -434,13 +439,7 @@ pub fn read_meta(dir: &Path) -> Result<CheckpointMeta> {
 fn read_verified(dir: &Path, meta: &CheckpointMeta, file: &str, dev: &Device) -> Result<HashMap<String, Tensor>> {
     let path = dir.join(file);
     let want = meta.checksums.get(file).ok_or_else(|| ck_err(&path, "not listed in the state file"))?;
-    let got = crc_of(&path)?;
-    if got != *want {
-        return Err(ck_err(
-            &path,
-            format!("checksum mismatch (file {got:08x}, state file {want:08x}): the file is corrupted"),
-        ));
-    }
+    verify_file(&path, *want)?;
     candle_core::safetensors::load(&path, dev).map_err(|e| ck_err(&path, e.to_string()))
 }
 
