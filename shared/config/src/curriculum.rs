@@ -122,20 +122,39 @@ impl CurriculumConfig {
                 return bad(field, p.to_string(), "must lie in [0, 1]");
             }
         }
-        if self.pass_window == 0 {
-            return bad("pass_window", "0".into(), "must be at least 1");
+        if !self.pass_threshold.is_finite() {
+            return bad("pass_threshold", self.pass_threshold.to_string(), "must be a finite return");
         }
-        if self.candidates < 2 {
-            return bad("candidates", self.candidates.to_string(), "at least 2 are needed to fit σ");
+        // Upper bounds far above any sensible setting: the service allocates these up front.
+        for (field, value, min, max) in [
+            ("pass_window", self.pass_window, 1, 1_000_000),
+            ("candidates", self.candidates, 2, 1 << 20),
+            ("train_every_episodes", self.train_every_episodes, 1, 1_000_000),
+            ("net.batch", self.net.batch, 1, 1 << 16),
+            ("net.epochs", self.net.epochs, 1, 10_000),
+            ("max_rejections", self.max_rejections, 1, 100_000_000),
+        ] {
+            if !(min..=max).contains(&value) {
+                let why = if field == "candidates" { " (at least 2 to fit σ)" } else { "" };
+                return bad(field, value.to_string(), &format!("must be in {min}..={max}{why}"));
+            }
         }
-        if self.train_every_episodes == 0 {
-            return bad("train_every_episodes", "0".into(), "must be at least 1");
+        if !(self.net.lr > 0.0 && self.net.lr.is_finite()) {
+            return bad("net.lr", self.net.lr.to_string(), "must be a finite positive learning rate");
         }
-        if self.net.batch == 0 || self.net.epochs == 0 || self.net.lr.is_nan() || self.net.lr <= 0.0 {
-            return bad("net", format!("{:?}", self.net), "batch and epochs must be ≥ 1 and lr > 0");
+        if self.net.hidden.len() > 16 {
+            return bad(
+                "net.hidden",
+                format!("{:?}", self.net.hidden),
+                "at most 16 layer widths ([] is a linear model)",
+            );
         }
-        if self.max_rejections == 0 {
-            return bad("max_rejections", "0".into(), "must be at least 1");
+        if let Some(w) = self.net.hidden.iter().find(|w| !(1..=4096).contains(*w)) {
+            return bad(
+                "net.hidden",
+                format!("{:?}", self.net.hidden),
+                &format!("width {w}: each must be in 1..=4096"),
+            );
         }
         Ok(())
     }

@@ -96,8 +96,11 @@ impl DsacConfig {
         if !(0.0..1.0).contains(&self.gamma) {
             return Err(ConfigError::learner("gamma", self.gamma, "must be in [0, 1)"));
         }
-        if !(self.initial_alpha > 0.0) {
-            return Err(ConfigError::learner("initial_alpha", self.initial_alpha, "must be positive"));
+        if !self.target_entropy.is_finite() {
+            return Err(ConfigError::learner("target_entropy", self.target_entropy, "must be finite (−|A| = −3)"));
+        }
+        if !(self.initial_alpha > 0.0 && self.initial_alpha.is_finite()) {
+            return Err(ConfigError::learner("initial_alpha", self.initial_alpha, "must be finite and positive"));
         }
         for (field, v) in [
             ("lr_alpha", self.lr_alpha),
@@ -112,13 +115,24 @@ impl DsacConfig {
         if !(self.soft_update > 0.0 && self.soft_update <= 1.0) {
             return Err(ConfigError::learner("soft_update", self.soft_update, "must be in (0, 1]"));
         }
-        if !(self.huber_kappa > 0.0) {
-            return Err(ConfigError::learner("huber_kappa", self.huber_kappa, "must be positive"));
+        if !(self.huber_kappa > 0.0 && self.huber_kappa.is_finite()) {
+            return Err(ConfigError::learner("huber_kappa", self.huber_kappa, "must be finite and positive"));
+        }
+        if !(self.fraction_entropy >= 0.0 && self.fraction_entropy.is_finite()) {
+            return Err(ConfigError::learner(
+                "fraction_entropy",
+                self.fraction_entropy,
+                "must be finite and ≥ 0 (0: off)",
+            ));
         }
         if let Some(m) = self.max_grad_norm
-            && !(m > 0.0)
+            && !(m > 0.0 && m.is_finite())
         {
-            return Err(ConfigError::learner("max_grad_norm", m, "must be positive (omit it to disable clipping)"));
+            return Err(ConfigError::learner(
+                "max_grad_norm",
+                m,
+                "must be finite and positive (omit it to disable clipping)",
+            ));
         }
         if !(self.state_aux_weight >= 0.0 && self.state_aux_weight.is_finite()) {
             return Err(ConfigError::learner(
@@ -130,8 +144,15 @@ impl DsacConfig {
         if self.batch_size < 2 {
             return Err(ConfigError::learner("batch_size", self.batch_size, "must be at least 2"));
         }
-        if self.train_interval == 0 {
-            return Err(ConfigError::learner("train_interval", self.train_interval, "must be positive"));
+        if !(1..=1_000_000).contains(&self.train_interval) {
+            return Err(ConfigError::learner(
+                "train_interval",
+                self.train_interval,
+                "must be in 1..=1000000 env steps",
+            ));
+        }
+        if self.rate_slack == 0 {
+            return Err(ConfigError::learner("rate_slack", self.rate_slack, "must be at least 1 update"));
         }
         if self.warmup < self.batch_size as u64 {
             return Err(ConfigError::learner(

@@ -82,17 +82,19 @@ impl NetsConfig {
         } else if self.state_dim == 0 {
             return Err(config_error("state_dim", self.state_dim, "must be positive"));
         }
-        if self.hidden == 0 {
-            return Err(config_error("hidden", self.hidden, "must be positive"));
-        }
-        if self.history_features == 0 {
-            return Err(config_error("history_features", self.history_features, "must be positive"));
-        }
-        if self.quantiles < 2 {
-            return Err(config_error("quantiles", self.quantiles, "must be at least 2"));
-        }
-        if self.quantile_grid < 1 {
-            return Err(config_error("quantile_grid", self.quantile_grid, "must be at least 1"));
+        // Upper bounds far above any published setting (256 / 8 / 32 / 32): a larger
+        // value is a typo, and `pednav-run check` builds the networks to estimate memory.
+        for (field, value, min, max) in [
+            ("image_size", self.image_size, 1, 1024),
+            ("state_dim", self.state_dim, 1, 4096),
+            ("hidden", self.hidden, 1, 8192),
+            ("history_features", self.history_features, 1, 1024),
+            ("quantiles", self.quantiles, 2, 1024),
+            ("quantile_grid", self.quantile_grid, 1, 1024),
+        ] {
+            if !(min..=max).contains(&value) {
+                return Err(config_error(field, value, format!("must be in {min}..={max}")));
+            }
         }
         Ok(())
     }

@@ -28,6 +28,10 @@ pub enum ActorPolicy {
     Random,
 }
 
+/// Longest duration any `runtime.*_secs` setting may give (≈ 116 days): longer ones
+/// are typos, and `std::time::Duration` cannot hold every finite `f64`.
+pub const MAX_SECS: f64 = 1e7;
+
 /// Settings of the distributed runtime (processes, IPC, cadence of outputs).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
@@ -190,7 +194,8 @@ impl RunConfig {
                         &format!("must equal sim.image_size = {}", self.sim.image_size),
                     );
                 }
-                if self.dsac.random_shift * 4 > self.nets.image_size {
+                // As `random_shift > image_size / 4`: `4 × random_shift` could overflow.
+                if self.dsac.random_shift > self.nets.image_size / 4 {
                     return bad(
                         "dsac.random_shift",
                         self.dsac.random_shift.to_string(),
@@ -252,22 +257,27 @@ impl RunConfig {
             ("runtime.give_up_secs", r.give_up_secs),
             ("runtime.task_timeout_secs", r.task_timeout_secs),
         ] {
-            if !(v.is_finite() && v > 0.0) {
-                return bad(field, v.to_string(), "must be a positive number of seconds");
+            if !(v > 0.0 && v <= MAX_SECS) {
+                return bad(
+                    field,
+                    v.to_string(),
+                    &format!("must be a positive number of seconds, at most {MAX_SECS:e}"),
+                );
             }
         }
-        if !(r.hang_secs.is_finite() && r.hang_secs >= 3.0 * r.metrics_every_secs) {
+        if !(r.hang_secs <= MAX_SECS && r.hang_secs >= 3.0 * r.metrics_every_secs) {
             return bad(
                 "runtime.hang_secs",
                 r.hang_secs.to_string(),
                 &format!(
-                    "must be at least 3 × runtime.metrics_every_secs = {} (heartbeats come that often)",
+                    "must be at least 3 × runtime.metrics_every_secs = {} (heartbeats come that often) \
+                     and at most {MAX_SECS:e}",
                     3.0 * r.metrics_every_secs
                 ),
             );
         }
-        if r.step_buffer < 16 {
-            return bad("runtime.step_buffer", r.step_buffer.to_string(), "must be at least 16 records");
+        if !(16..=1 << 20).contains(&r.step_buffer) {
+            return bad("runtime.step_buffer", r.step_buffer.to_string(), "must be 16 … 1048576 records");
         }
         let (nt, t) = (self.replay.nonterminal_capacity, self.replay.terminal_capacity);
         if nt < self.dsac.batch_size || t == 0 {
@@ -412,6 +422,48 @@ mod tests {
         cfg.dsac.random_shift = 22;
         let e = cfg.validate("x").unwrap_err().to_string();
         assert!(e.contains("dsac.random_shift") && e.contains("21"), "{e}");
+    }
+
+    /// Values that once passed `check` and then panicked a process or were taken
+    /// silently: each `--set` alone must be refused, naming the field, without a panic.
+    #[test]
+    fn malformed_values_are_refused_naming_the_field() {
+        let dir = std::env::temp_dir().join(format!("pednav-config-malformed-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let path = dir.join("base.toml");
+        std::fs::write(&path, "").unwrap();
+        let cases = [
+            ("runtime.give_up_secs=1e20", "runtime.give_up_secs"),
+            ("runtime.task_timeout_secs=1e300", "runtime.task_timeout_secs"),
+            ("runtime.hang_secs=1e20", "runtime.hang_secs"),
+            ("runtime.metrics_every_secs=inf", "runtime.metrics_every_secs"),
+            ("runtime.step_buffer=9223372036854775807", "runtime.step_buffer"),
+            ("dsac.random_shift=4611686018427387904", "dsac.random_shift"),
+            ("dsac.target_entropy=nan", "target_entropy"),
+            ("dsac.fraction_entropy=nan", "fraction_entropy"),
+            ("dsac.initial_alpha=inf", "initial_alpha"),
+            ("dsac.huber_kappa=inf", "huber_kappa"),
+            ("dsac.max_grad_norm=inf", "max_grad_norm"),
+            ("dsac.train_interval=0", "train_interval"),
+            ("dsac.rate_slack=0", "rate_slack"),
+            ("nets.hidden=1000000", "hidden"),
+            ("nets.quantiles=100000", "quantiles"),
+            ("nets.quantile_grid=100000", "quantile_grid"),
+            ("nets.history_features=100000", "history_features"),
+            ("curriculum.net.hidden=[0]", "net.hidden"),
+            ("curriculum.net.hidden=[64, 100000]", "net.hidden"),
+            ("curriculum.net.lr=inf", "net.lr"),
+            ("curriculum.net.batch=0", "net.batch"),
+            ("curriculum.candidates=1000000000000000000", "candidates"),
+            ("curriculum.pass_window=1000000000000000000", "pass_window"),
+            ("curriculum.pass_threshold=nan", "pass_threshold"),
+            ("sim.agent_height=inf", "agent_height"),
+        ];
+        for (set, field) in cases {
+            let e = RunConfig::load_with(&path, &[set.to_string()]).expect_err(set).to_string();
+            assert!(e.contains(field) && e.contains("base.toml"), "--set {set}: the error must name `{field}`: {e}");
+        }
+        let _ = std::fs::remove_dir_all(&dir);
     }
 
     #[test]

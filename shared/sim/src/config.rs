@@ -105,10 +105,10 @@ impl SimConfig {
             "must lie in (0.05, 1) m",
         )?;
         check(
-            self.agent_height > 2.0 * self.agent_radius,
+            self.agent_height > 2.0 * self.agent_radius && self.agent_height <= MAX_EYE_HEIGHT,
             "agent_height",
             self.agent_height,
-            "must exceed twice the radius",
+            "must exceed twice agent_radius and be at most 3 m (a pedestrian)",
         )?;
         let max_eye = MAX_EYE_HEIGHT;
         check(

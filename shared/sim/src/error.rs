@@ -137,6 +137,20 @@ pub enum RenderError {
         /// Adapter limit.
         limit: u32,
     },
+    /// The scene's ground texture (one texel per region-map cell) exceeds the
+    /// adapter's texture size limit.
+    #[error(
+        "the scene's ground texture is {width}×{height} texels (one per cell), over this adapter's limit {limit} \
+         a side: enlarge the scene's `cell_size` or shrink its `extent`"
+    )]
+    GroundTooLarge {
+        /// Texels along x.
+        width: u32,
+        /// Texels along y.
+        height: u32,
+        /// Adapter limit.
+        limit: u32,
+    },
     /// Mapping the readback buffer or waiting for the device failed.
     #[error("GPU readback failed: {0}")]
     Readback(String),

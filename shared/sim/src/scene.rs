@@ -1,11 +1,14 @@
 //! The scene as data: one TOML description from which the renderer's meshes and
 //! ground texture, the physics colliders and the reward map are all derived.
 //!
-//! Invariant: a [`Scene`] that exists has passed [`Scene::validate`] — every
-//! polygon has at least three vertices, exactly one region is the goal, every
-//! start pose (first task, fixed start, validation points) lies inside the world,
-//! outside obstacles and outside the goal, and every reward is finite. Code
-//! downstream relies on this and does not re-check.
+//! Invariant: a [`Scene`] that exists has passed [`Scene::from_spec`] — every
+//! number in it is finite; the world is at most [`MAX_MAP_CELLS`] cells a side;
+//! every polygon is simple (at least three vertices, non-zero area, no two edges
+//! crossing); every region and obstacle touches the world and the goal and the
+//! curriculum region lie inside it; exactly one region is the goal; every start
+//! pose (first task, fixed start, validation points) lies inside the world,
+//! outside obstacles and outside the goal; heights are at most
+//! [`MAX_HEIGHT`]. Code downstream relies on this and does not re-check.
 //!
 //! Coordinates: metres, `x` east, `y` north, `z` up; yaw in degrees in the scene
 //! file (radians everywhere in code), 0° facing +x (east), counter-clockwise positive.
@@ -20,6 +23,15 @@ pub use crate::reward::Rewards;
 
 /// The reference corner crossing (DESIGN §3), compiled into the binary.
 pub const REFERENCE_SCENE_TOML: &str = include_str!("../scenes/corner.toml");
+
+/// Most cells of the region map (and texels of the ground texture, one per cell)
+/// along either side of the world: 8192 is the 2D texture side every wgpu backend
+/// supports by default, and 8192² cells (64 Mi labels) is already 64 MiB per process.
+pub const MAX_MAP_CELLS: usize = 8192;
+
+/// Tallest wall or obstacle a scene may have, in metres (a 300-storey tower; a
+/// larger value is a typo that would only stretch the mesh and its depth range).
+pub const MAX_HEIGHT: f32 = 1000.0;
 
 /// Axis along which a pedestrian walks over a zebra crossing; the stripes
 /// alternate along it (each stripe is long across this axis).
@@ -53,6 +65,17 @@ impl Rect {
     /// Height along y.
     pub fn height(&self) -> f32 {
         self.max[1] - self.min[1]
+    }
+    /// Do the two rectangles share at least a point?
+    pub fn intersects(&self, other: &Rect) -> bool {
+        self.min[0] <= other.max[0]
+            && other.min[0] <= self.max[0]
+            && self.min[1] <= other.max[1]
+            && other.min[1] <= self.max[1]
+    }
+    /// Does `self` lie inside `other` (boundaries included)?
+    pub fn within(&self, other: &Rect) -> bool {
+        other.contains(self.min[0], self.min[1]) && other.contains(self.max[0], self.max[1])
     }
     fn polygon(&self) -> Vec<[f32; 2]> {
         vec![
@@ -108,6 +131,31 @@ impl Polygon {
         }
         (a * 0.5).abs()
     }
+
+    /// The first pair of edges `(i, j)` that cross, if any (edge `i` runs from vertex
+    /// `i` to vertex `i + 1`). Edges sharing a vertex are not compared; two edges
+    /// cross when each one's end points lie strictly on opposite sides of the other.
+    pub fn crossing_edges(&self) -> Option<(usize, usize)> {
+        let v = &self.0;
+        let n = v.len();
+        let point = |k: usize| [f64::from(v[k % n][0]), f64::from(v[k % n][1])];
+        let side = |a: [f64; 2], b: [f64; 2], c: [f64; 2]| {
+            ((b[0] - a[0]) * (c[1] - a[1]) - (b[1] - a[1]) * (c[0] - a[0])).signum()
+        };
+        for i in 0..n {
+            // j > i + 1 and not the edge that closes the loop back onto vertex i.
+            for j in i + 2..n {
+                if i == 0 && j == n - 1 {
+                    continue;
+                }
+                let (a, b, c, d) = (point(i), point(i + 1), point(j), point(j + 1));
+                if side(a, b, c) * side(a, b, d) < 0.0 && side(c, d, a) * side(c, d, b) < 0.0 {
+                    return Some((i, j));
+                }
+            }
+        }
+        None
+    }
 }
 
 /// A shape on the ground plane given either as `rect = [x0, y0, x1, y1]` or as
@@ -126,29 +174,47 @@ pub struct Area {
 impl Area {
     fn resolve(&self, field: &str, origin: &str) -> Result<Polygon> {
         match (&self.rect, &self.polygon) {
-            (Some(r), None) => {
-                if !(r[2] > r[0] && r[3] > r[1]) {
-                    return Err(invalid(
-                        origin,
-                        field,
-                        format!("rect {r:?} must satisfy x_min < x_max and y_min < y_max"),
-                    ));
-                }
-                Ok(Polygon(Rect { min: [r[0], r[1]], max: [r[2], r[3]] }.polygon()))
-            }
+            (Some(r), None) => Ok(Polygon(resolve_rect(r, &format!("{field}.rect"), origin)?.polygon())),
             (None, Some(p)) => {
+                let field = format!("{field}.polygon");
                 if p.len() < 3 {
-                    return Err(invalid(origin, field, format!("polygon needs at least 3 vertices, got {}", p.len())));
+                    return Err(invalid(origin, &field, format!("needs at least 3 vertices, got {}", p.len())));
+                }
+                if let Some(k) = p.iter().position(|q| !(q[0].is_finite() && q[1].is_finite())) {
+                    return Err(invalid(origin, &field, format!("vertex {k} {:?} is not finite", p[k])));
                 }
                 let poly = Polygon(p.clone());
-                if poly.area() <= 1e-6 {
-                    return Err(invalid(origin, field, "polygon has zero area".into()));
+                let area = poly.area();
+                if area.is_nan() || area <= 1e-6 {
+                    return Err(invalid(origin, &field, "has zero area".into()));
+                }
+                if let Some((i, j)) = poly.crossing_edges() {
+                    return Err(invalid(
+                        origin,
+                        &field,
+                        format!("edges {i} and {j} cross: give the vertices in order around a simple polygon"),
+                    ));
                 }
                 Ok(poly)
             }
             _ => Err(invalid(origin, field, "give exactly one of `rect` or `polygon`".into())),
         }
     }
+}
+
+/// A `[x_min, y_min, x_max, y_max]` rectangle from a scene file: finite, non-empty.
+fn resolve_rect(r: &[f32; 4], field: &str, origin: &str) -> Result<Rect> {
+    if !r.iter().all(|v| v.is_finite()) {
+        return Err(invalid(origin, field, format!("{r:?} is not finite")));
+    }
+    let rect = Rect { min: [r[0], r[1]], max: [r[2], r[3]] };
+    if !(rect.width() > 0.0 && rect.height() > 0.0) {
+        return Err(invalid(origin, field, format!("{r:?} must satisfy x_min < x_max and y_min < y_max")));
+    }
+    if !(rect.width().is_finite() && rect.height().is_finite()) {
+        return Err(invalid(origin, field, format!("{r:?} is wider than a 32-bit float can measure")));
+    }
+    Ok(rect)
 }
 
 /// A ground region as written in the scene file.
@@ -232,6 +298,16 @@ pub enum Footprint {
 }
 
 impl Footprint {
+    /// Bounding box on the ground.
+    pub fn bounds(&self) -> Rect {
+        match *self {
+            Footprint::Box(r) => r,
+            Footprint::Cylinder { center, radius } => {
+                Rect { min: [center[0] - radius, center[1] - radius], max: [center[0] + radius, center[1] + radius] }
+            }
+        }
+    }
+
     /// Distance from a point to the footprint (0 inside).
     pub fn distance(&self, x: f32, y: f32) -> f32 {
         match *self {
@@ -399,6 +475,13 @@ pub struct Scene {
     pub goal_center: [f32; 2],
 }
 
+fn check_height(h: f32, field: &str, origin: &str) -> Result<()> {
+    if !(h > 0.0 && h <= MAX_HEIGHT) {
+        return Err(invalid(origin, field, format!("{h} must lie in (0, {MAX_HEIGHT}] metres")));
+    }
+    Ok(())
+}
+
 fn invalid(origin: &str, field: &str, message: String) -> SimError {
     SimError::SceneInvalid { origin: origin.to_string(), field: field.to_string(), message }
 }
@@ -434,17 +517,26 @@ impl Scene {
 
     /// Validate a parsed specification and resolve its shapes.
     pub fn from_spec(spec: SceneSpec, origin: &str) -> Result<Scene> {
-        let e = spec.extent;
-        if !(e.iter().all(|v| v.is_finite()) && e[2] > e[0] && e[3] > e[1]) {
-            return Err(invalid(origin, "extent", format!("{e:?} must be finite with x_min < x_max, y_min < y_max")));
+        if spec.name.trim().is_empty() {
+            return Err(invalid(origin, "name", "must not be empty (it names the scene in logs and outputs)".into()));
         }
-        let extent = Rect { min: [e[0], e[1]], max: [e[2], e[3]] };
+        let extent = resolve_rect(&spec.extent, "extent", origin)?;
         if !(spec.cell_size > 0.005 && spec.cell_size <= 1.0) {
             return Err(invalid(origin, "cell_size", format!("{} must lie in (0.005, 1] metres", spec.cell_size)));
         }
-        if !(spec.wall_height > 0.0 && spec.wall_height.is_finite()) {
-            return Err(invalid(origin, "wall_height", format!("{} must be positive", spec.wall_height)));
+        let cells = [extent.width() / spec.cell_size, extent.height() / spec.cell_size].map(|c| c.ceil());
+        if cells.iter().any(|&c| c > MAX_MAP_CELLS as f32) {
+            return Err(invalid(
+                origin,
+                "extent",
+                format!(
+                    "{:?} is {} × {} cells of cell_size {} m: at most {MAX_MAP_CELLS} a side \
+                     (shrink the world or enlarge cell_size)",
+                    spec.extent, cells[0], cells[1], spec.cell_size
+                ),
+            ));
         }
+        check_height(spec.wall_height, "wall_height", origin)?;
         if let Some((name, v)) = spec.rewards.non_finite_term() {
             return Err(invalid(origin, &format!("rewards.{name}"), format!("{v} is not finite")));
         }
@@ -453,6 +545,9 @@ impl Scene {
         for (i, rs) in spec.regions.iter().enumerate() {
             let field = format!("regions[{i}]");
             let polygon = Area { rect: rs.rect, polygon: rs.polygon.clone() }.resolve(&field, origin)?;
+            if !polygon.bounds().intersects(&extent) {
+                return Err(invalid(origin, &field, format!("lies wholly outside the world {:?}", spec.extent)));
+            }
             if rs.kind == RegionKind::Zebra && rs.walk_axis.is_none() {
                 return Err(invalid(
                     origin,
@@ -471,6 +566,14 @@ impl Scene {
             ));
         }
         let gb = goals[0].polygon.bounds();
+        if !gb.within(&extent) {
+            let i = regions.iter().position(|r| r.kind == RegionKind::Goal).expect("one goal");
+            return Err(invalid(
+                origin,
+                &format!("regions[{i}]"),
+                format!("the goal must lie inside the world {:?} (an agent could not reach it)", spec.extent),
+            ));
+        }
         let goal_center = [(gb.min[0] + gb.max[0]) * 0.5, (gb.min[1] + gb.max[1]) * 0.5];
 
         let mut obstacles = Vec::with_capacity(spec.obstacles.len() + 4);
@@ -479,26 +582,22 @@ impl Scene {
             if os.kind == ObstacleKind::Wall {
                 return Err(invalid(origin, &field, "walls are generated from `extent`; do not list them".into()));
             }
-            if !(os.height > 0.0 && os.height.is_finite()) {
-                return Err(invalid(origin, &format!("{field}.height"), format!("{} must be positive", os.height)));
-            }
+            check_height(os.height, &format!("{field}.height"), origin)?;
             if !(0.0..=1.0).contains(&os.shade) {
                 return Err(invalid(origin, &format!("{field}.shade"), format!("{} must lie in [0, 1]", os.shade)));
             }
             let footprint = match (os.rect, os.center, os.radius) {
-                (Some(r), None, None) => {
-                    if !(r[2] > r[0] && r[3] > r[1]) {
+                (Some(r), None, None) => Footprint::Box(resolve_rect(&r, &format!("{field}.rect"), origin)?),
+                (None, Some(c), Some(rad)) => {
+                    if !(c[0].is_finite() && c[1].is_finite()) {
+                        return Err(invalid(origin, &format!("{field}.center"), format!("{c:?} is not finite")));
+                    }
+                    if !(rad > 0.0 && rad <= extent.width().max(extent.height())) {
                         return Err(invalid(
                             origin,
-                            &format!("{field}.rect"),
-                            format!("{r:?} must satisfy x_min < x_max and y_min < y_max"),
+                            &format!("{field}.radius"),
+                            format!("{rad} must be positive and no larger than the world"),
                         ));
-                    }
-                    Footprint::Box(Rect { min: [r[0], r[1]], max: [r[2], r[3]] })
-                }
-                (None, Some(c), Some(rad)) => {
-                    if rad.is_nan() || rad <= 0.0 {
-                        return Err(invalid(origin, &format!("{field}.radius"), format!("{rad} must be positive")));
                     }
                     Footprint::Cylinder { center: c, radius: rad }
                 }
@@ -510,7 +609,30 @@ impl Scene {
                     ));
                 }
             };
+            if !footprint.bounds().intersects(&extent) {
+                return Err(invalid(origin, &field, format!("stands wholly outside the world {:?}", spec.extent)));
+            }
             obstacles.push(Obstacle { kind: os.kind, footprint, height: os.height, shade: os.shade });
+        }
+        for (i, m) in spec.markings.iter().enumerate() {
+            let field = format!("markings[{i}]");
+            for (name, p) in [("from", m.from), ("to", m.to)] {
+                if !(p[0].is_finite() && p[1].is_finite()) {
+                    return Err(invalid(origin, &format!("{field}.{name}"), format!("{p:?} is not finite")));
+                }
+            }
+            if !(m.width > 0.0 && m.width.is_finite()) {
+                return Err(invalid(origin, &format!("{field}.width"), format!("{} must be positive", m.width)));
+            }
+            for (name, v) in [("dash", m.dash), ("gap", m.gap)] {
+                if !(v >= 0.0 && v.is_finite()) {
+                    return Err(invalid(
+                        origin,
+                        &format!("{field}.{name}"),
+                        format!("{v} must be finite and ≥ 0 (dash = 0: a solid line)"),
+                    ));
+                }
+            }
         }
         // Boundary walls, 0.5 m thick, just outside the extent.
         let t = 0.5;
@@ -531,7 +653,16 @@ impl Scene {
 
         let mut curriculum_region = Vec::new();
         for (i, a) in spec.curriculum_region.iter().enumerate() {
-            curriculum_region.push(a.resolve(&format!("curriculum_region[{i}]"), origin)?);
+            let field = format!("curriculum_region[{i}]");
+            let area = a.resolve(&field, origin)?;
+            if !area.bounds().within(&extent) {
+                return Err(invalid(
+                    origin,
+                    &field,
+                    format!("must lie inside the world {:?} (start poses are drawn from it)", spec.extent),
+                ));
+            }
+            curriculum_region.push(area);
         }
         if curriculum_region.is_empty() {
             return Err(invalid(origin, "curriculum_region", "at least one area is required".into()));
@@ -676,6 +807,57 @@ mod tests {
         assert!(err.contains("exactly one region"), "{err}");
         let err = Scene::from_toml_str("name = 3", "test").unwrap_err().to_string();
         assert!(err.contains("test") && err.contains("name"), "{err}");
+    }
+
+    /// Each case changes one thing of the reference scene (`from` → `to`, first
+    /// occurrence); loading must fail without a panic and name `field`.
+    #[test]
+    fn malformed_scenes_are_refused_naming_the_field() {
+        let cr = "[[curriculum_region]]\nrect = [5.0, -9.0, 33.0, -5.0]";
+        let goal = "rect = [18.0, 5.0, 22.0, 9.0]";
+        let huge_band = format!("{cr}\n[[curriculum_region]]\nrect = [-3e38, 1e30, 3e38, 2e30]");
+        let beyond = format!("{cr}\n[[curriculum_region]]\nrect = [40.0, -9.0, 60.0, -5.0]");
+        let cases: Vec<(&str, &str, &str)> = vec![
+            (cr, &huge_band, "curriculum_region[1].rect"),
+            (cr, &beyond, "curriculum_region[1]"),
+            ("extent = [-30.0, -35.0, 50.0, 35.0]", "extent = [-30.0, -35.0, 1000.0, 35.0]", "extent"),
+            ("extent = [-30.0, -35.0, 50.0, 35.0]", "extent = [-3e38, -35.0, 3e38, 35.0]", "extent"),
+            ("center = [10.4, -5.6]", "center = [nan, -5.6]", ".center"),
+            ("center = [10.4, -5.6]", "center = [100.0, -5.6]", "outside the world"),
+            ("radius = 0.12", "radius = inf", ".radius"),
+            ("rect = [9.0, -35.0, 20.0, -9.0]", "rect = [9.0, -35.0, inf, -9.0]", "obstacles[0].rect"),
+            ("height = 14.0", "height = 1e30", "obstacles[0].height"),
+            ("wall_height = 3.0", "wall_height = 1e30", "wall_height"),
+            (goal, "polygon = [[18.0, 5.0], [22.0, 5.0], [22.0, 9.0], [18.0, 9.0], [nan, nan]]", "regions[8].polygon"),
+            (goal, "polygon = [[18.0, 5.0], [22.0, 9.0], [22.0, 5.0], [18.0, 9.0]]", "regions[8].polygon"),
+            (goal, "rect = [48.0, 5.0, 52.0, 9.0]", "regions[8]"),
+            ("rect = [-30.0, -35.0, -5.0, -5.0]", "rect = [-130.0, -135.0, -105.0, -105.0]", "regions[1]"),
+            ("width = 0.15", "width = nan", "markings[0].width"),
+            ("from = [15.5, 0.0]", "from = [inf, 0.0]", "markings[0].from"),
+            ("dash = 3.0", "dash = -1.0", "markings[0].dash"),
+            ("name = \"corner\"", "name = \"  \"", "name"),
+        ];
+        for (from, to, field) in cases {
+            assert!(REFERENCE_SCENE_TOML.contains(from), "{from}");
+            let text = REFERENCE_SCENE_TOML.replacen(from, to, 1);
+            let err = Scene::from_toml_str(&text, "case").expect_err(to).to_string();
+            assert!(err.contains(field), "`{to}`: the error must name `{field}`: {err}");
+        }
+    }
+
+    #[test]
+    fn crossing_edges_finds_a_bow_tie_only() {
+        let bow_tie = Polygon(vec![[0.0, 0.0], [4.0, 2.0], [4.0, 0.0], [0.0, 4.0]]);
+        assert_eq!(bow_tie.crossing_edges(), Some((0, 2)));
+        // Simple polygons, convex and not, with collinear and touching-free edges.
+        for p in [
+            vec![[0.0, 0.0], [4.0, 0.0], [4.0, 4.0], [0.0, 4.0]],
+            vec![[0.0, 0.0], [4.0, 0.0], [2.0, 1.0], [4.0, 4.0], [0.0, 4.0]],
+            vec![[0.0, 0.0], [1.0, 0.0], [2.0, 0.0], [2.0, 1.0]],
+            vec![[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]],
+        ] {
+            assert_eq!(Polygon(p.clone()).crossing_edges(), None, "{p:?}");
+        }
     }
 
     #[test]

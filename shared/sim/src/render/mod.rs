@@ -246,6 +246,9 @@ impl Renderer {
             return Err(RenderError::AtlasTooLarge { views, size, needed: aw.max(ah), limit });
         }
 
+        if map.nx as u64 > u64::from(limit) || map.ny as u64 > u64::from(limit) {
+            return Err(RenderError::GroundTooLarge { width: map.nx as u32, height: map.ny as u32, limit });
+        }
         let ground = ground::bake(scene, map);
         let ground_tex = device.create_texture_with_data(
             &queue,
