@@ -81,7 +81,8 @@ impl Classification {
     }
 }
 
-/// Classify the curriculum region of `scene` with `curriculum`'s task-value net.
+/// Classify the curriculum region of `scene` (with its enlarged areas when
+/// `cfg.enlarged_region`) with `curriculum`'s task-value net.
 /// `None` for the fixed-start variant (no net).
 pub fn classify_region(
     curriculum: &mut Curriculum,
@@ -89,7 +90,7 @@ pub fn classify_region(
     cfg: &CurriculumConfig,
     cell: f32,
 ) -> Result<Option<Classification>> {
-    let sampler = TaskSampler::new(scene, cfg.max_rejections);
+    let sampler = TaskSampler::new(scene, cfg.enlarged_region, cfg.max_rejections);
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(1);
     let candidates: Vec<[f32; 3]> = (0..cfg.candidates)
         .map(|_| sampler.sample(scene, &mut rng).map(|p| task_features(p, scene.goal_center)))
@@ -102,13 +103,13 @@ pub fn classify_region(
     let b = bands(cfg, fit, t_c);
     let mut points = Vec::new();
     let mut features = Vec::new();
-    for poly in &scene.curriculum_region {
+    for poly in sampler.areas() {
         let r = poly.bounds();
         let mut y = r.min[1] + cell / 2.0;
         while y < r.max[1] {
             let mut x = r.min[0] + cell / 2.0;
             while x < r.max[0] {
-                if scene.in_curriculum_region(x, y) && !points.contains(&[x, y]) {
+                if sampler.contains(x, y) && !points.contains(&[x, y]) {
                     let yaw = (scene.goal_center[1] - y).atan2(scene.goal_center[0] - x);
                     points.push([x, y]);
                     features.push(task_features(Pose { x, y, yaw }, scene.goal_center));

@@ -70,8 +70,11 @@ impl TaskScheduler {
     /// A scheduler for `scene` driven by `seed`.
     pub fn new(cfg: CurriculumConfig, scene: Scene, seed: u64) -> Result<TaskScheduler> {
         cfg.validate()?;
+        if cfg.enlarged_region && scene.enlarged_curriculum_region.is_empty() {
+            return Err(enlarged_region_missing(&scene).into());
+        }
         Ok(TaskScheduler {
-            sampler: TaskSampler::new(&scene, cfg.max_rejections),
+            sampler: TaskSampler::new(&scene, cfg.enlarged_region, cfg.max_rejections),
             gate: PassFirstTask::new(cfg.pass_window, cfg.pass_threshold),
             t_c: 0,
             rng: ChaCha8Rng::seed_from_u64(seed),
@@ -179,4 +182,13 @@ impl TaskScheduler {
             Category::Easy | Category::Frontier | Category::Random | Category::Hard => self.t_c += steps as u64,
         }
     }
+}
+
+/// `curriculum.enlarged_region = true` for a scene without `enlarged_curriculum_region`.
+fn enlarged_region_missing(scene: &Scene) -> pednav_config::ConfigError {
+    pednav_config::ConfigError::curriculum(
+        "enlarged_region",
+        true,
+        format!("scene {} has no `enlarged_curriculum_region` areas to enlarge the region with", scene.origin),
+    )
 }

@@ -67,6 +67,35 @@ fn navacl_plus_stays_on_the_first_task_until_the_gate_passes() {
 }
 
 #[test]
+fn the_enlarged_region_proposes_beyond_the_curriculum_region() {
+    let scene = Scene::reference();
+    let enlarged = scene.proposal_region(true);
+    let cfg =
+        CurriculumConfig { variant: Variant::NavAcl, candidates: 64, enlarged_region: true, ..Default::default() };
+    let mut s = TaskScheduler::new(cfg, Scene::reference(), 3).unwrap();
+    let mut outside = 0;
+    for _ in 0..200 {
+        let p = s.propose(&mut DistancePredictor).unwrap();
+        assert!(enlarged.iter().any(|a| a.contains(p.pose.x, p.pose.y)), "{:?}", p.pose);
+        assert!(scene.check_task(p.pose).is_ok());
+        outside += usize::from(!scene.in_curriculum_region(p.pose.x, p.pose.y));
+        s.record_episode(p.category, 100, -30.0);
+    }
+    // The enlarged areas are ≈ 6× the curriculum region: most random-category and
+    // many easy/frontier proposals fall outside it.
+    assert!(outside > 20, "only {outside} of 200 proposals outside the curriculum region");
+
+    // A scene without enlarged areas cannot honour the setting: refused, naming it.
+    let cut = pednav_sim::scene::REFERENCE_SCENE_TOML.split("# Enlarged ACL-proposed region").next().unwrap();
+    let plain = Scene::from_toml_str(cut, "plain").unwrap();
+    assert!(plain.enlarged_curriculum_region.is_empty());
+    let cfg = CurriculumConfig { enlarged_region: true, ..Default::default() };
+    let Err(err) = TaskScheduler::new(cfg, plain, 0) else { panic!("enlarged_region without areas accepted") };
+    let err = err.to_string();
+    assert!(err.contains("enlarged_region") && err.contains("plain"), "{err}");
+}
+
+#[test]
 fn easy_tasks_lie_closer_to_the_goal_than_frontier_tasks() {
     // NavACL has no gate, so it filters from the first proposal.
     let scene = Scene::reference();

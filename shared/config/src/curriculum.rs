@@ -66,6 +66,11 @@ pub struct CurriculumConfig {
     pub train_every_episodes: usize,
     /// The task-value network (f^r or f^s).
     pub net: TaskNetConfig,
+    /// Propose starts in the scene's `enlarged_curriculum_region` as well as its
+    /// curriculum region — the paper's "enlarged ACL-proposed regions" (§V-C), the
+    /// runs with which its agent also walked near-optimally from extrapolated poses.
+    /// Default `false` (the paper's main runs). The fixed-start variant ignores it.
+    pub enlarged_region: bool,
     /// Rejection-sampling limit per candidate: draws from the curriculum region's
     /// bounding box before giving up (the region covers ≈10 % of the reference
     /// box; 1000 makes a failure astronomically unlikely there and bounded elsewhere).
@@ -88,6 +93,7 @@ impl Default for CurriculumConfig {
             pass_window: 30,
             pass_threshold: -25.0,
             candidates: 4096,
+            enlarged_region: false,
             train_every_episodes: 10,
             net: TaskNetConfig::default(),
             max_rejections: 1000,

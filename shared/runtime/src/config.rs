@@ -181,7 +181,14 @@ impl RunConfig {
         self.nets.validate().map_err(|e| section("nets", e.to_string()))?;
         self.dsac.validate().map_err(|e| section("dsac", e.to_string()))?;
         self.curriculum.validate().map_err(|e| section("curriculum", e.to_string()))?;
-        self.scene()?;
+        let scene = self.scene()?;
+        if self.curriculum.enlarged_region && scene.enlarged_curriculum_region.is_empty() {
+            return bad(
+                "curriculum.enlarged_region",
+                "true".into(),
+                &format!("the scene ({}) has no `enlarged_curriculum_region` areas", scene.origin),
+            );
+        }
         match self.sim.obs_mode {
             ObsMode::Pixels => {
                 if self.nets.encoder == EncoderKind::Mlp {
@@ -463,6 +470,24 @@ mod tests {
             let e = RunConfig::load_with(&path, &[set.to_string()]).expect_err(set).to_string();
             assert!(e.contains(field) && e.contains("base.toml"), "--set {set}: the error must name `{field}`: {e}");
         }
+        let _ = std::fs::remove_dir_all(&dir);
+    }
+
+    #[test]
+    fn the_enlarged_region_needs_a_scene_that_has_one() {
+        let mut cfg = RunConfig::default();
+        cfg.curriculum.enlarged_region = true;
+        cfg.validate("x").unwrap();
+        let dir = std::env::temp_dir().join(format!("pednav-config-enlarged-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let plain = dir.join("plain.toml");
+        let cut = pednav_sim::scene::REFERENCE_SCENE_TOML.split("# Enlarged ACL-proposed region").next().unwrap();
+        std::fs::write(&plain, cut).unwrap();
+        cfg.scene = Some(plain.clone());
+        let e = cfg.validate("x").unwrap_err().to_string();
+        assert!(e.contains("curriculum.enlarged_region") && e.contains("plain.toml"), "{e}");
+        cfg.curriculum.enlarged_region = false;
+        cfg.validate("x").unwrap();
         let _ = std::fs::remove_dir_all(&dir);
     }
 

@@ -446,8 +446,16 @@ pub struct SceneSpec {
     pub first_task: PoseSpec,
     /// The fixed start of the Non-ACL variants (validation point 3).
     pub fixed_start: PoseSpec,
-    /// The region the curriculum samples start positions from (union of areas).
+    /// The region the curriculum samples start positions from (union of areas). It
+    /// also defines the protocol's classes: validation points 0–7 lie inside it
+    /// (interpolated), 8–13 outside (extrapolated).
     pub curriculum_region: Vec<Area>,
+    /// Further areas the curriculum may propose starts in when a run sets
+    /// `curriculum.enlarged_region = true` — the paper's "enlarged ACL-proposed
+    /// regions" (§V-C), which bring the extrapolated points' surroundings into
+    /// training. They do not change which validation points count as extrapolated.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub enlarged_curriculum_region: Vec<Area>,
     /// The 14 validation points.
     pub validation_points: Vec<ValidationPoint>,
 }
@@ -471,6 +479,8 @@ pub struct Scene {
     pub obstacles: Vec<Obstacle>,
     /// The curriculum region as a union of polygons.
     pub curriculum_region: Vec<Polygon>,
+    /// The enlarged region's extra areas (may be empty).
+    pub enlarged_curriculum_region: Vec<Polygon>,
     /// Centroid of the goal region: the `s_g` of the task features φ = (dx, dy, yaw).
     pub goal_center: [f32; 2],
 }
@@ -651,25 +661,39 @@ impl Scene {
             });
         }
 
-        let mut curriculum_region = Vec::new();
-        for (i, a) in spec.curriculum_region.iter().enumerate() {
-            let field = format!("curriculum_region[{i}]");
-            let area = a.resolve(&field, origin)?;
-            if !area.bounds().within(&extent) {
-                return Err(invalid(
-                    origin,
-                    &field,
-                    format!("must lie inside the world {:?} (start poses are drawn from it)", spec.extent),
-                ));
+        let proposal_areas = |name: &str, areas: &[Area]| -> Result<Vec<Polygon>> {
+            let mut out = Vec::with_capacity(areas.len());
+            for (i, a) in areas.iter().enumerate() {
+                let field = format!("{name}[{i}]");
+                let area = a.resolve(&field, origin)?;
+                if !area.bounds().within(&extent) {
+                    return Err(invalid(
+                        origin,
+                        &field,
+                        format!("must lie inside the world {:?} (start poses are drawn from it)", spec.extent),
+                    ));
+                }
+                out.push(area);
             }
-            curriculum_region.push(area);
-        }
+            Ok(out)
+        };
+        let curriculum_region = proposal_areas("curriculum_region", &spec.curriculum_region)?;
         if curriculum_region.is_empty() {
             return Err(invalid(origin, "curriculum_region", "at least one area is required".into()));
         }
+        let enlarged_curriculum_region =
+            proposal_areas("enlarged_curriculum_region", &spec.enlarged_curriculum_region)?;
 
-        let scene =
-            Scene { spec, origin: origin.to_string(), extent, regions, obstacles, curriculum_region, goal_center };
+        let scene = Scene {
+            spec,
+            origin: origin.to_string(),
+            extent,
+            regions,
+            obstacles,
+            curriculum_region,
+            enlarged_curriculum_region,
+            goal_center,
+        };
 
         scene.check_start("first_task", scene.spec.first_task.into())?;
         scene.check_start("fixed_start", scene.spec.fixed_start.into())?;
@@ -749,6 +773,13 @@ impl Scene {
     /// Is the point inside the curriculum region?
     pub fn in_curriculum_region(&self, x: f32, y: f32) -> bool {
         self.curriculum_region.iter().any(|p| p.contains(x, y))
+    }
+
+    /// The areas the curriculum proposes starts in: the curriculum region, plus the
+    /// enlarged region's areas when `enlarged` (empty when the scene has none).
+    pub fn proposal_region(&self, enlarged: bool) -> Vec<Polygon> {
+        let extra = if enlarged { &self.enlarged_curriculum_region[..] } else { &[] };
+        self.curriculum_region.iter().chain(extra).cloned().collect()
     }
 
     /// The first task (easiest pose before PassFirstTask).
@@ -842,6 +873,18 @@ mod tests {
             let text = REFERENCE_SCENE_TOML.replacen(from, to, 1);
             let err = Scene::from_toml_str(&text, "case").expect_err(to).to_string();
             assert!(err.contains(field), "`{to}`: the error must name `{field}`: {err}");
+        }
+    }
+
+    #[test]
+    fn the_enlarged_region_covers_the_extrapolated_points_only_when_asked() {
+        let s = Scene::reference();
+        let inside = |areas: &[Polygon], p: &ValidationPoint| areas.iter().any(|a| a.contains(p.x, p.y));
+        let (paper, enlarged) = (s.proposal_region(false), s.proposal_region(true));
+        assert_eq!(paper, s.curriculum_region);
+        for p in s.validation_points() {
+            assert_eq!(inside(&paper, p), p.id < 8, "point {}", p.id);
+            assert!(inside(&enlarged, p), "point {} must be proposable in the enlarged region", p.id);
         }
     }
 
