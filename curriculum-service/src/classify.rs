@@ -103,20 +103,18 @@ pub fn classify_region(
     let b = bands(cfg, fit, t_c);
     let mut points = Vec::new();
     let mut features = Vec::new();
-    for poly in sampler.areas() {
-        let r = poly.bounds();
-        let mut y = r.min[1] + cell / 2.0;
-        while y < r.max[1] {
-            let mut x = r.min[0] + cell / 2.0;
-            while x < r.max[0] {
-                if sampler.contains(x, y) && !points.contains(&[x, y]) {
-                    let yaw = (scene.goal_center[1] - y).atan2(scene.goal_center[0] - x);
-                    points.push([x, y]);
-                    features.push(task_features(Pose { x, y, yaw }, scene.goal_center));
-                }
-                x += cell;
+    // One grid over the whole proposal region, so cells where areas overlap come once.
+    let r = sampler.bounds();
+    let (nx, ny) = ((r.width() / cell).ceil() as usize, (r.height() / cell).ceil() as usize);
+    for j in 0..ny {
+        let y = r.min[1] + (j as f32 + 0.5) * cell;
+        for i in 0..nx {
+            let x = r.min[0] + (i as f32 + 0.5) * cell;
+            if sampler.contains(x, y) {
+                let yaw = (scene.goal_center[1] - y).atan2(scene.goal_center[0] - x);
+                points.push([x, y]);
+                features.push(task_features(Pose { x, y, yaw }, scene.goal_center));
             }
-            y += cell;
         }
     }
     let values = curriculum.predict(&features).expect("the net exists");

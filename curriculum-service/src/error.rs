@@ -7,7 +7,10 @@ pub enum CurriculumError {
     #[error(transparent)]
     Config(#[from] pednav_config::ConfigError),
     /// No valid start pose was found in the curriculum region.
-    #[error("no valid task found in the curriculum region after {tries} draws; is the region free of obstacles?")]
+    #[error(
+        "no valid task found in the curriculum region (enlarged, if configured) after {tries} draws; \
+         is the region free of obstacles?"
+    )]
     NoValidTask {
         /// Draws made.
         tries: usize,

@@ -32,9 +32,9 @@ impl TaskSampler {
         TaskSampler { areas, bounds, max_rejections }
     }
 
-    /// The areas poses are drawn from.
-    pub fn areas(&self) -> &[Polygon] {
-        &self.areas
+    /// The bounding box of the areas (what rejection sampling draws from).
+    pub fn bounds(&self) -> Rect {
+        self.bounds
     }
 
     /// Is the point inside one of the areas?

@@ -70,7 +70,7 @@ impl TaskScheduler {
     /// A scheduler for `scene` driven by `seed`.
     pub fn new(cfg: CurriculumConfig, scene: Scene, seed: u64) -> Result<TaskScheduler> {
         cfg.validate()?;
-        if cfg.enlarged_region && scene.enlarged_curriculum_region.is_empty() {
+        if cfg.enlarged_region && cfg.variant != Variant::FixedStart && scene.enlarged_curriculum_region.is_empty() {
             return Err(enlarged_region_missing(&scene).into());
         }
         Ok(TaskScheduler {

@@ -182,7 +182,10 @@ impl RunConfig {
         self.dsac.validate().map_err(|e| section("dsac", e.to_string()))?;
         self.curriculum.validate().map_err(|e| section("curriculum", e.to_string()))?;
         let scene = self.scene()?;
-        if self.curriculum.enlarged_region && scene.enlarged_curriculum_region.is_empty() {
+        if self.curriculum.enlarged_region
+            && self.curriculum.variant != pednav_config::Variant::FixedStart
+            && scene.enlarged_curriculum_region.is_empty()
+        {
             return bad(
                 "curriculum.enlarged_region",
                 "true".into(),

@@ -4,8 +4,8 @@
 //! Invariant: a [`Scene`] that exists has passed [`Scene::from_spec`] — every
 //! number in it is finite; the world is at most [`MAX_MAP_CELLS`] cells a side;
 //! every polygon is simple (at least three vertices, non-zero area, no two edges
-//! crossing); every region and obstacle touches the world and the goal and the
-//! curriculum region lie inside it; exactly one region is the goal; every start
+//! crossing); the bounding box of every region and obstacle touches the world, and
+//! the goal and the curriculum region (enlarged areas included) lie inside it; exactly one region is the goal; every start
 //! pose (first task, fixed start, validation points) lies inside the world,
 //! outside obstacles and outside the goal; heights are at most
 //! [`MAX_HEIGHT`]. Code downstream relies on this and does not re-check.
@@ -139,8 +139,11 @@ impl Polygon {
         let v = &self.0;
         let n = v.len();
         let point = |k: usize| [f64::from(v[k % n][0]), f64::from(v[k % n][1])];
+        // −1, 0 or 1: which side of the line a→b the point c lies on (0: on it, so
+        // touching, collinear and zero-length edges never count as crossing).
         let side = |a: [f64; 2], b: [f64; 2], c: [f64; 2]| {
-            ((b[0] - a[0]) * (c[1] - a[1]) - (b[1] - a[1]) * (c[0] - a[0])).signum()
+            let cross = (b[0] - a[0]) * (c[1] - a[1]) - (b[1] - a[1]) * (c[0] - a[0]);
+            f64::from(i8::from(cross > 0.0) - i8::from(cross < 0.0))
         };
         for i in 0..n {
             // j > i + 1 and not the edge that closes the loop back onto vertex i.
@@ -184,6 +187,10 @@ impl Area {
                     return Err(invalid(origin, &field, format!("vertex {k} {:?} is not finite", p[k])));
                 }
                 let poly = Polygon(p.clone());
+                let b = poly.bounds();
+                if !(b.width().is_finite() && b.height().is_finite()) {
+                    return Err(invalid(origin, &field, "is wider than a 32-bit float can measure".into()));
+                }
                 let area = poly.area();
                 if area.is_nan() || area <= 1e-6 {
                     return Err(invalid(origin, &field, "has zero area".into()));
@@ -860,7 +867,8 @@ mod tests {
             ("height = 14.0", "height = 1e30", "obstacles[0].height"),
             ("wall_height = 3.0", "wall_height = 1e30", "wall_height"),
             (goal, "polygon = [[18.0, 5.0], [22.0, 5.0], [22.0, 9.0], [18.0, 9.0], [nan, nan]]", "regions[8].polygon"),
-            (goal, "polygon = [[18.0, 5.0], [22.0, 9.0], [22.0, 5.0], [18.0, 9.0]]", "regions[8].polygon"),
+            (goal, "polygon = [[18.0, 5.0], [22.0, 9.0], [22.0, 5.0], [18.0, 8.0]]", "edges 0 and 2 cross"),
+            (goal, "polygon = [[-3e38, 5.0], [3e38, 5.0], [0.0, 9.0]]", "regions[8].polygon"),
             (goal, "rect = [48.0, 5.0, 52.0, 9.0]", "regions[8]"),
             ("rect = [-30.0, -35.0, -5.0, -5.0]", "rect = [-130.0, -135.0, -105.0, -105.0]", "regions[1]"),
             ("width = 0.15", "width = nan", "markings[0].width"),
@@ -898,6 +906,8 @@ mod tests {
             vec![[0.0, 0.0], [4.0, 0.0], [2.0, 1.0], [4.0, 4.0], [0.0, 4.0]],
             vec![[0.0, 0.0], [1.0, 0.0], [2.0, 0.0], [2.0, 1.0]],
             vec![[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]],
+            // Clockwise, the first vertex repeated at the end (a zero-length edge).
+            vec![[0.0, 0.0], [0.0, 4.0], [4.0, 4.0], [4.0, 0.0], [0.0, 0.0]],
         ] {
             assert_eq!(Polygon(p.clone()).crossing_edges(), None, "{p:?}");
         }
