@@ -2,9 +2,12 @@
 //! damage, the previous generation kept by every save, the fallback to it, and a
 //! save interrupted after any of its steps (issue 18).
 
+#[path = "../../tests/support/warnings.rs"]
+mod warnings;
+use warnings::logged_warnings;
+
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
-use std::sync::{Arc, Mutex};
 
 use pednav_curriculum::{Curriculum, CurriculumConfig, ServiceState};
 use pednav_sim::Scene;
@@ -16,6 +19,7 @@ fn state(next_task_id: u64) -> ServiceState {
 
 #[test]
 fn a_damaged_state_is_refused_and_the_previous_generation_loads() {
+    warnings::install();
     let dir = std::env::temp_dir().join(format!("pednav-curriculum-state-{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&dir);
     std::fs::create_dir_all(&dir).unwrap();
@@ -85,6 +89,7 @@ fn resume(path: &Path) -> (u64, PathBuf) {
 /// never lost.
 #[test]
 fn a_save_stopped_after_any_step_resumes_from_a_whole_state() {
+    warnings::install();
     let root = std::env::temp_dir().join(format!("pednav-curriculum-steps-{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&root);
     for (start, (name, allowed)) in STARTS.iter().enumerate() {
@@ -159,6 +164,7 @@ fn damage(file: &Path, how: &str) {
 /// nothing. A save after a fallback keeps the good previous state.
 #[test]
 fn each_damaged_state_file_falls_back_and_is_named() {
+    warnings::install();
     let dir = std::env::temp_dir().join(format!("pednav-curriculum-damage-{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&dir);
     std::fs::create_dir_all(&dir).unwrap();
@@ -197,44 +203,4 @@ fn each_damaged_state_file_falls_back_and_is_named() {
     damage(&path, "truncate to half");
     assert_eq!(resume(&path), (10, prev.clone()));
     let _ = std::fs::remove_dir_all(&dir);
-}
-
-/// The warnings logged on this thread while `f` runs, each as its fields' text.
-fn logged_warnings<T>(f: impl FnOnce() -> T) -> (T, Vec<String>) {
-    let seen = Arc::new(Mutex::new(Vec::new()));
-    let out = tracing::subscriber::with_default(Warnings(seen.clone()), f);
-    let seen = seen.lock().unwrap().clone();
-    (out, seen)
-}
-
-struct Warnings(Arc<Mutex<Vec<String>>>);
-
-impl tracing::Subscriber for Warnings {
-    fn register_callsite(&self, _: &'static tracing::Metadata<'static>) -> tracing::subscriber::Interest {
-        tracing::subscriber::Interest::sometimes()
-    }
-    fn enabled(&self, metadata: &tracing::Metadata<'_>) -> bool {
-        *metadata.level() <= tracing::Level::WARN
-    }
-    fn new_span(&self, _: &tracing::span::Attributes<'_>) -> tracing::span::Id {
-        tracing::span::Id::from_u64(1)
-    }
-    fn record(&self, _: &tracing::span::Id, _: &tracing::span::Record<'_>) {}
-    fn record_follows_from(&self, _: &tracing::span::Id, _: &tracing::span::Id) {}
-    fn event(&self, event: &tracing::Event<'_>) {
-        let mut text = String::new();
-        event.record(&mut Fields(&mut text));
-        self.0.lock().unwrap().push(text);
-    }
-    fn enter(&self, _: &tracing::span::Id) {}
-    fn exit(&self, _: &tracing::span::Id) {}
-}
-
-struct Fields<'a>(&'a mut String);
-
-impl tracing::field::Visit for Fields<'_> {
-    fn record_debug(&mut self, field: &tracing::field::Field, value: &dyn std::fmt::Debug) {
-        use std::fmt::Write;
-        let _ = write!(self.0, "{}={value:?} ", field.name());
-    }
 }

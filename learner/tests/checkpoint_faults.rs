@@ -5,12 +5,16 @@
 //! those of one save, never a mixture — names the damaged file, and the next save works.
 
 mod common;
+#[path = "../../tests/support/warnings.rs"]
+mod warnings;
+use warnings::logged_warnings;
+
 use common::{all_values, small};
 
 use std::io::{BufRead, BufReader};
 use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
-use std::sync::{Arc, Mutex, mpsc};
+use std::sync::mpsc;
 use std::time::Duration;
 
 use candle_core::Device;
@@ -105,6 +109,7 @@ fn set_up(start: usize, ck: &Path) {
 /// generation. From a damaged newest, the good previous generation is never lost.
 #[test]
 fn a_save_stopped_after_any_step_resumes_from_a_whole_generation() {
+    warnings::install();
     let root = scratch("steps");
     for (start, (name, allowed)) in STARTS.iter().enumerate() {
         let mut steps = Vec::new();
@@ -186,6 +191,7 @@ fn damage(file: &Path, how: &str) {
 /// generation (not the damaged newest), so the next damage still finds it.
 #[test]
 fn every_damaged_file_falls_back_to_the_previous_generation_and_is_named() {
+    warnings::install();
     let root = scratch("damage");
     let ck = root.join("learner");
     let prev = previous_generation(&ck);
@@ -246,6 +252,7 @@ fn every_damaged_file_falls_back_to_the_previous_generation_and_is_named() {
 /// a format-2 state file whose checksum field is gone is refused.
 #[test]
 fn state_files_of_format_1_still_load_and_a_missing_state_checksum_is_refused() {
+    warnings::install();
     let root = scratch("format");
     let ck = root.join("learner");
     save(&ck, 1);
@@ -270,6 +277,7 @@ const WRITER_FROM: &str = "PEDNAV_TEST_CHECKPOINT_WRITER_FROM";
 /// run again with [`WRITER_DIR`] set), saving generation after generation until killed.
 #[test]
 fn checkpoint_writer_process() {
+    warnings::install();
     let Ok(dir) = std::env::var(WRITER_DIR) else { return };
     let from: u64 = std::env::var(WRITER_FROM).unwrap().parse().unwrap();
     let mut learners: Vec<Dsac> = (0..4).map(generation).collect();
@@ -287,6 +295,7 @@ fn checkpoint_writer_process() {
 /// or the one after it — nothing but the save in progress is lost.
 #[test]
 fn a_writer_killed_during_saves_resumes_from_a_whole_generation() {
+    warnings::install();
     let root = scratch("kill");
     let ck = root.join("learner");
     let mut rng = ChaCha8Rng::seed_from_u64(18);
@@ -327,44 +336,4 @@ fn a_writer_killed_during_saves_resumes_from_a_whole_generation() {
     }
     eprintln!("16 kills, {mid_save} of them with a save's partial folder or rotation on disk");
     let _ = std::fs::remove_dir_all(&root);
-}
-
-/// The warnings logged on this thread while `f` runs, each as its fields' text.
-fn logged_warnings<T>(f: impl FnOnce() -> T) -> (T, Vec<String>) {
-    let seen = Arc::new(Mutex::new(Vec::new()));
-    let out = tracing::subscriber::with_default(Warnings(seen.clone()), f);
-    let seen = seen.lock().unwrap().clone();
-    (out, seen)
-}
-
-struct Warnings(Arc<Mutex<Vec<String>>>);
-
-impl tracing::Subscriber for Warnings {
-    fn register_callsite(&self, _: &'static tracing::Metadata<'static>) -> tracing::subscriber::Interest {
-        tracing::subscriber::Interest::sometimes()
-    }
-    fn enabled(&self, metadata: &tracing::Metadata<'_>) -> bool {
-        *metadata.level() <= tracing::Level::WARN
-    }
-    fn new_span(&self, _: &tracing::span::Attributes<'_>) -> tracing::span::Id {
-        tracing::span::Id::from_u64(1)
-    }
-    fn record(&self, _: &tracing::span::Id, _: &tracing::span::Record<'_>) {}
-    fn record_follows_from(&self, _: &tracing::span::Id, _: &tracing::span::Id) {}
-    fn event(&self, event: &tracing::Event<'_>) {
-        let mut text = String::new();
-        event.record(&mut Fields(&mut text));
-        self.0.lock().unwrap().push(text);
-    }
-    fn enter(&self, _: &tracing::span::Id) {}
-    fn exit(&self, _: &tracing::span::Id) {}
-}
-
-struct Fields<'a>(&'a mut String);
-
-impl tracing::field::Visit for Fields<'_> {
-    fn record_debug(&mut self, field: &tracing::field::Field, value: &dyn std::fmt::Debug) {
-        use std::fmt::Write;
-        let _ = write!(self.0, "{}={value:?} ", field.name());
-    }
 }
