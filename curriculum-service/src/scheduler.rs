@@ -70,9 +70,7 @@ impl TaskScheduler {
     /// A scheduler for `scene` driven by `seed`.
     pub fn new(cfg: CurriculumConfig, scene: Scene, seed: u64) -> Result<TaskScheduler> {
         cfg.validate()?;
-        if cfg.enlarged_region && cfg.variant != Variant::FixedStart && scene.enlarged_curriculum_region.is_empty() {
-            return Err(enlarged_region_missing(&scene).into());
-        }
+        cfg.validate_for_scene(&scene.origin, !scene.enlarged_curriculum_region.is_empty())?;
         Ok(TaskScheduler {
             sampler: TaskSampler::new(&scene, cfg.enlarged_region, cfg.max_rejections),
             gate: PassFirstTask::new(cfg.pass_window, cfg.pass_threshold),
@@ -182,13 +180,4 @@ impl TaskScheduler {
             Category::Easy | Category::Frontier | Category::Random | Category::Hard => self.t_c += steps as u64,
         }
     }
-}
-
-/// `curriculum.enlarged_region = true` for a scene without `enlarged_curriculum_region`.
-fn enlarged_region_missing(scene: &Scene) -> pednav_config::ConfigError {
-    pednav_config::ConfigError::curriculum(
-        "enlarged_region",
-        true,
-        format!("scene {} has no `enlarged_curriculum_region` areas to enlarge the region with", scene.origin),
-    )
 }

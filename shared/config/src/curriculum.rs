@@ -166,6 +166,22 @@ impl CurriculumConfig {
         }
         Ok(())
     }
+
+    /// Check the settings that depend on the scene (named `scene` in the error):
+    /// `enlarged_region` needs the scene's `enlarged_curriculum_region` areas
+    /// (`has_enlarged_areas`), except for the fixed start, which proposes nothing.
+    /// The one place this rule is written: `pednav-run check` and the curriculum's
+    /// `TaskScheduler` both call it.
+    pub fn validate_for_scene(&self, scene: &str, has_enlarged_areas: bool) -> Result<()> {
+        if self.enlarged_region && self.variant != Variant::FixedStart && !has_enlarged_areas {
+            return Err(ConfigError::curriculum(
+                "enlarged_region",
+                true,
+                format!("the scene ({scene}) has no `enlarged_curriculum_region` areas to enlarge the region with"),
+            ));
+        }
+        Ok(())
+    }
 }
 
 /// Settings of the task-value network.
@@ -187,5 +203,22 @@ pub struct TaskNetConfig {
 impl Default for TaskNetConfig {
     fn default() -> Self {
         TaskNetConfig { hidden: vec![64, 64], lr: 1e-3, batch: 64, epochs: 5 }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_enlarged_region_needs_the_scenes_areas_unless_the_start_is_fixed() {
+        let enlarged = CurriculumConfig { enlarged_region: true, ..Default::default() };
+        enlarged.validate_for_scene("reference", true).unwrap();
+        let e = enlarged.validate_for_scene("plain.toml", false).unwrap_err();
+        assert_eq!((e.section, e.field), ("curriculum", "enlarged_region"));
+        assert!(e.to_string().contains("plain.toml"), "{e}");
+        // The fixed start proposes nothing, so the setting is moot there.
+        CurriculumConfig { variant: Variant::FixedStart, ..enlarged }.validate_for_scene("plain.toml", false).unwrap();
+        CurriculumConfig::default().validate_for_scene("plain.toml", false).unwrap();
     }
 }

@@ -182,16 +182,14 @@ impl RunConfig {
         self.dsac.validate().map_err(|e| section("dsac", e.to_string()))?;
         self.curriculum.validate().map_err(|e| section("curriculum", e.to_string()))?;
         let scene = self.scene()?;
-        if self.curriculum.enlarged_region
-            && self.curriculum.variant != pednav_config::Variant::FixedStart
-            && scene.enlarged_curriculum_region.is_empty()
-        {
-            return bad(
-                "curriculum.enlarged_region",
-                "true".into(),
-                &format!("the scene ({}) has no `enlarged_curriculum_region` areas", scene.origin),
-            );
-        }
+        self.curriculum.validate_for_scene(&scene.origin, !scene.enlarged_curriculum_region.is_empty()).map_err(
+            |e| RuntimeError::Config {
+                file: file.to_string(),
+                field: format!("curriculum.{}", e.field),
+                value: e.value,
+                message: e.message,
+            },
+        )?;
         match self.sim.obs_mode {
             ObsMode::Pixels => {
                 if self.nets.encoder == EncoderKind::Mlp {
