@@ -48,7 +48,7 @@ pub struct RuntimeConfig {
     pub checkpoint_every_secs: f64,
     /// Save the curriculum state every this many episode reports (and on stop).
     pub curriculum_save_every_episodes: u64,
-    /// Write a metrics row (CSV + TensorBoard) every this many seconds.
+    /// Write a metrics row (CSV + TensorBoard) every this many seconds, and a last one at stop.
     pub metrics_every_secs: f64,
     /// Step records the learner's subscriber buffers before actors wait.
     pub step_buffer: usize,

@@ -152,6 +152,8 @@ impl CurriculumService {
                 std::thread::sleep(Duration::from_micros(500));
             }
         }
+        // The last (partial) interval gets its metrics row too.
+        self.log_interval()?;
         self.save(&self.dir.curriculum_state())?;
         let c = &self.curriculum;
         self.dir.write_stats(

@@ -289,6 +289,9 @@ impl LearnerProcess {
                 std::thread::sleep(Duration::from_millis(10));
             }
         }
+        // The last (partial) interval gets its metrics row too: a run shorter than
+        // `metrics_every_secs` still leaves a learner log.
+        self.log_interval()?;
         self.save()?;
         let status = self.budget_spent.unwrap_or("stopped");
         write_stats(&self.dir, &self.l, self.received_total, status)?;
