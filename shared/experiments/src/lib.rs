@@ -7,6 +7,8 @@
 //! - [`diagnose`]: what a trained agent learned along its evaluation episodes
 //!   (a linear probe of the encoder for pose and return, the critic against
 //!   Monte-Carlo returns);
+//! - [`recognisability`]: which corner of the intersection a single frame shows
+//!   (a small CNN; with the simulator's aliasing measure, `pednav-recognisability`);
 //! - [`table`]: Table III's aggregation (mean ± std per point, Avg.Int, Avg.Ext,
 //!   success rate, oracle);
 //! - [`plots`]: Fig. 3 (return and episodes vs decision steps), Fig. 4 snapshots,
@@ -19,6 +21,7 @@ pub mod error;
 pub mod evaluate;
 pub mod plots;
 pub mod protocol;
+pub mod recognisability;
 pub mod table;
 
 pub use error::{ExperimentError, Result};

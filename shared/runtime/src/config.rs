@@ -101,7 +101,9 @@ impl Default for RuntimeConfig {
 pub struct RunConfig {
     /// Seed of the run: every process derives its own seed from it (actor k: seed ⊕ k).
     pub seed: u64,
-    /// Scene file (TOML); absent: the built-in reference corner.
+    /// Scene file (TOML), or a scene compiled in: `built-in:corner` (the reference,
+    /// also what an absent value means) or `built-in:corner_plain` (the reference
+    /// scene's first version, whose corners look alike).
     pub scene: Option<PathBuf>,
     /// Simulator.
     pub sim: SimConfig,
@@ -140,7 +142,7 @@ impl RunConfig {
             let described = format!("with --set {}", overrides.join(" "));
             RunConfig::deserialize(table).map_err(|e| invalid(&format!("{described}: {e}")))?
         };
-        if let Some(scene) = cfg.scene.as_mut().filter(|s| s.is_relative()) {
+        if let Some(scene) = cfg.scene.as_mut().filter(|s| s.is_relative() && !pednav_sim::scene::is_built_in(s)) {
             let base = path.parent().unwrap_or(Path::new("."));
             let candidate = base.join(&*scene);
             if candidate.exists() || !scene.exists() {

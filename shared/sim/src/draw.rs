@@ -9,6 +9,7 @@ use std::path::Path;
 
 use image::{Rgb, RgbImage, Rgba, RgbaImage};
 
+use crate::appearance::Paving;
 use crate::error::{Result, SimError};
 use crate::region_map::RegionMap;
 use crate::scene::{Footprint, ObstacleKind, Pose, RegionKind, Scene};
@@ -160,6 +161,13 @@ pub fn draw_map(scene: &Scene, map: &RegionMap, px_per_m: f32) -> MapCanvas {
             if kind == RegionKind::Zebra && !scene.on_zebra_stripe(x, y) {
                 c = region_color(RegionKind::Road);
             }
+            if matches!(kind, RegionKind::Sidewalk | RegionKind::GoalSidewalk) {
+                // Paved areas in their own tone, relative to the default paving.
+                if let Some(p) = scene.paving.iter().rev().find(|p| p.bounds.contains(x, y) && p.area.contains(x, y)) {
+                    let k = (p.tone / Paving::DEFAULT.tone).clamp(0.4, 1.4);
+                    c = c.map(|v| (v as f32 * k).min(255.0) as u8);
+                }
+            }
             if scene.in_curriculum_region(x, y) && ((px + py) % 9) < 2 {
                 c = [200, 60, 160];
             }
@@ -188,9 +196,16 @@ pub fn draw_map(scene: &Scene, map: &RegionMap, px_per_m: f32) -> MapCanvas {
                 }
             }
             Footprint::Cylinder { center, radius } => {
-                let r = if o.kind == ObstacleKind::Tree { 1.4 } else { radius };
-                canvas.disc(center[0], center[1], (r * px_per_m).max(2.0), color);
+                canvas.disc(center[0], center[1], (radius.max(o.crown_radius) * px_per_m).max(2.0), color);
             }
+        }
+    }
+    // Overhead details (awnings, signs, canopies): outlined, the ground shows through.
+    for o in &scene.overhead {
+        let (a, b) = (o.rect.min, o.rect.max);
+        let corners = [(a[0], a[1]), (b[0], a[1]), (b[0], b[1]), (a[0], b[1]), (a[0], a[1])];
+        for k in 0..4 {
+            canvas.line(corners[k], corners[k + 1], 1.5, [90, 60, 120]);
         }
     }
     let s = (px_per_m / 3.0).round().max(1.0) as i64;

@@ -30,9 +30,6 @@
 
 use std::sync::Arc;
 
-use rand::{Rng, SeedableRng};
-use rand_chacha::ChaCha8Rng;
-
 use crate::config::ObsMode;
 use crate::error::{Result, SimError};
 use crate::pedestrian::{Action, Pedestrian, Transition};
@@ -99,16 +96,7 @@ impl VecEnv {
     pub fn reset(&mut self, env: usize, task: Pose, seed: u64) -> Result<()> {
         self.world.scene.check_task(task)?;
         self.peds[env].reset(task);
-        self.looks[env] = if self.world.config.domain_randomization {
-            let mut rng = ChaCha8Rng::seed_from_u64(seed);
-            Look {
-                brightness: rng.random_range(-0.1..0.1),
-                contrast: rng.random_range(0.8..1.2),
-                haze: rng.random_range(0.002..0.008),
-            }
-        } else {
-            Look::default()
-        };
+        self.looks[env] = if self.world.config.domain_randomization { Look::randomized(seed) } else { Look::default() };
         Ok(())
     }
 

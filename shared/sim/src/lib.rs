@@ -17,6 +17,7 @@
 
 #![warn(missing_docs)]
 
+pub mod appearance;
 pub mod config;
 pub mod draw;
 pub mod env;
@@ -25,6 +26,7 @@ pub mod oracle;
 pub mod pedestrian;
 pub mod physics;
 pub mod policy;
+pub mod recognisability;
 pub mod region_kind;
 pub mod region_map;
 pub mod render;

@@ -17,12 +17,35 @@ use std::path::Path;
 
 use serde::{Deserialize, Serialize};
 
+pub use crate::appearance::{
+    Facade, GroundFloor, Overhead, OverheadSpec, Paving, PavingSpec, PavingStyle, WindowStyle,
+};
+use crate::appearance::{resolve_overhead, resolve_paving};
 use crate::error::{Result, SimError};
 pub use crate::region_kind::RegionKind;
 pub use crate::reward::Rewards;
 
-/// The reference corner crossing (DESIGN §3), compiled into the binary.
+/// The reference corner crossing, compiled into the binary: the intersection whose
+/// four corners each look like themselves (see `scenes/corner.toml`).
 pub const REFERENCE_SCENE_TOML: &str = include_str!("../scenes/corner.toml");
+
+/// The reference scene as it was before its corners were told apart: the same
+/// roads, regions, tasks and validation points, with look-alike corners (nearly
+/// four-fold symmetric from the pedestrian's eye). Kept to compare learning on the
+/// two and to re-evaluate results trained on it (`scene = "built-in:corner_plain"`).
+pub const PLAIN_SCENE_TOML: &str = include_str!("../scenes/corner_plain.toml");
+
+/// How a config or a command line names a scene compiled into the binary:
+/// `built-in:<name>`, with a name of [`BUILT_IN_SCENES`].
+pub const BUILT_IN_PREFIX: &str = "built-in:";
+
+/// The scenes compiled into the binary, by name.
+pub const BUILT_IN_SCENES: [(&str, &str); 2] = [("corner", REFERENCE_SCENE_TOML), ("corner_plain", PLAIN_SCENE_TOML)];
+
+/// Is `path` the name of a built-in scene (`built-in:<name>`) rather than a file?
+pub fn is_built_in(path: &Path) -> bool {
+    path.to_str().is_some_and(|p| p.starts_with(BUILT_IN_PREFIX))
+}
 
 /// Most cells of the region map (and texels of the ground texture, one per cell)
 /// along either side of the world: 8192 is the 2D texture side every wgpu backend
@@ -175,7 +198,7 @@ pub struct Area {
 }
 
 impl Area {
-    fn resolve(&self, field: &str, origin: &str) -> Result<Polygon> {
+    pub(crate) fn resolve(&self, field: &str, origin: &str) -> Result<Polygon> {
         match (&self.rect, &self.polygon) {
             (Some(r), None) => Ok(Polygon(resolve_rect(r, &format!("{field}.rect"), origin)?.polygon())),
             (None, Some(p)) => {
@@ -210,7 +233,7 @@ impl Area {
 }
 
 /// A `[x_min, y_min, x_max, y_max]` rectangle from a scene file: finite, non-empty.
-fn resolve_rect(r: &[f32; 4], field: &str, origin: &str) -> Result<Rect> {
+pub(crate) fn resolve_rect(r: &[f32; 4], field: &str, origin: &str) -> Result<Rect> {
     if !r.iter().all(|v| v.is_finite()) {
         return Err(invalid(origin, field, format!("{r:?} is not finite")));
     }
@@ -288,7 +311,16 @@ pub struct ObstacleSpec {
     pub height: f32,
     /// Grey level in [0, 1] of its lit faces.
     pub shade: f32,
+    /// Buildings only: how its walls look (default: a plain grid of windows).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub facade: Option<Facade>,
+    /// Trees only: radius of the crown drawn above head height, metres (default 1.4).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub crown_radius: Option<f32>,
 }
+
+/// Crown radius of a tree whose scene entry gives none, metres.
+pub const DEFAULT_CROWN_RADIUS: f32 = 1.4;
 
 /// Footprint of a resolved obstacle.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -341,6 +373,10 @@ pub struct Obstacle {
     pub height: f32,
     /// Grey level of lit faces.
     pub shade: f32,
+    /// How its walls look (buildings; the default for everything else).
+    pub facade: Facade,
+    /// Radius of the drawn crown (trees; 0 for everything else).
+    pub crown_radius: f32,
 }
 
 /// A painted line on the road (lane divider); purely visual.
@@ -449,6 +485,14 @@ pub struct SceneSpec {
     /// Painted road markings (visual only).
     #[serde(default)]
     pub markings: Vec<Marking>,
+    /// Paved areas of sidewalk in paint order (visual only: a later one overrides an
+    /// earlier one; sidewalk cells covered by none get the default slabs).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub paving: Vec<PavingSpec>,
+    /// Details hung over the pedestrians' heads: awnings, signs, canopies, balconies
+    /// (visual only, no collider).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub overhead: Vec<OverheadSpec>,
     /// The easiest pose, used before the curriculum's PassFirstTask gate opens.
     pub first_task: PoseSpec,
     /// The fixed start of the Non-ACL variants (validation point 3).
@@ -484,6 +528,10 @@ pub struct Scene {
     pub regions: Vec<Region>,
     /// Static obstacles, including the generated boundary walls (last four).
     pub obstacles: Vec<Obstacle>,
+    /// Paved areas of sidewalk, in paint order (visual only).
+    pub paving: Vec<Paving>,
+    /// Overhead details (visual only).
+    pub overhead: Vec<Overhead>,
     /// The curriculum region as a union of polygons.
     pub curriculum_region: Vec<Polygon>,
     /// The enlarged region's extra areas (may be empty).
@@ -499,22 +547,36 @@ fn check_height(h: f32, field: &str, origin: &str) -> Result<()> {
     Ok(())
 }
 
-fn invalid(origin: &str, field: &str, message: String) -> SimError {
+pub(crate) fn invalid(origin: &str, field: &str, message: String) -> SimError {
     SimError::SceneInvalid { origin: origin.to_string(), field: field.to_string(), message }
 }
 
 impl Scene {
     /// The built-in reference corner crossing.
     pub fn reference() -> Scene {
-        Scene::from_toml_str(REFERENCE_SCENE_TOML, "built-in:corner")
-            .expect("the built-in reference scene is valid (checked by tests)")
+        Scene::built_in("corner").expect("the built-in reference scene is valid (checked by tests)")
     }
 
-    /// Load and validate a scene file.
+    /// Load and validate a scene file, or a built-in scene named `built-in:<name>`.
     pub fn load(path: &Path) -> Result<Scene> {
+        if let Some(name) = path.to_str().and_then(|p| p.strip_prefix(BUILT_IN_PREFIX)) {
+            return Scene::built_in(name);
+        }
         let text =
             std::fs::read_to_string(path).map_err(|source| SimError::SceneIo { path: path.to_path_buf(), source })?;
         Scene::from_toml_str(&text, &path.display().to_string())
+    }
+
+    /// A scene compiled into the binary, by its name in [`BUILT_IN_SCENES`].
+    pub fn built_in(name: &str) -> Result<Scene> {
+        let (name, text) = BUILT_IN_SCENES.iter().find(|(n, _)| *n == name).ok_or_else(|| SimError::SceneParse {
+            origin: format!("{BUILT_IN_PREFIX}{name}"),
+            message: format!(
+                "no built-in scene of that name; the built-in scenes are {}",
+                BUILT_IN_SCENES.iter().map(|(n, _)| format!("{BUILT_IN_PREFIX}{n}")).collect::<Vec<_>>().join(", ")
+            ),
+        })?;
+        Scene::from_toml_str(text, &format!("{BUILT_IN_PREFIX}{name}"))
     }
 
     /// Load a scene from a path, or the reference scene when `path` is `None`.
@@ -629,7 +691,41 @@ impl Scene {
             if !footprint.bounds().intersects(&extent) {
                 return Err(invalid(origin, &field, format!("stands wholly outside the world {:?}", spec.extent)));
             }
-            obstacles.push(Obstacle { kind: os.kind, footprint, height: os.height, shade: os.shade });
+            let facade = match (os.kind, os.facade) {
+                (ObstacleKind::Building, Some(f)) => {
+                    f.validate(&format!("{field}.facade"), origin)?;
+                    f
+                }
+                (_, Some(_)) => {
+                    return Err(invalid(origin, &format!("{field}.facade"), "only buildings have a facade".into()));
+                }
+                (_, None) => Facade::default(),
+            };
+            let crown_radius = match (os.kind, os.crown_radius) {
+                (ObstacleKind::Tree, r) => {
+                    let r = r.unwrap_or(DEFAULT_CROWN_RADIUS);
+                    if !(r > 0.0 && r <= 20.0) {
+                        return Err(invalid(
+                            origin,
+                            &format!("{field}.crown_radius"),
+                            format!("{r} must lie in (0, 20] metres"),
+                        ));
+                    }
+                    r
+                }
+                (_, Some(_)) => {
+                    return Err(invalid(origin, &format!("{field}.crown_radius"), "only trees have a crown".into()));
+                }
+                (_, None) => 0.0,
+            };
+            obstacles.push(Obstacle {
+                kind: os.kind,
+                footprint,
+                height: os.height,
+                shade: os.shade,
+                facade,
+                crown_radius,
+            });
         }
         for (i, m) in spec.markings.iter().enumerate() {
             let field = format!("markings[{i}]");
@@ -665,6 +761,8 @@ impl Scene {
                 footprint: Footprint::Box(rect),
                 height: spec.wall_height,
                 shade: 0.5,
+                facade: Facade::default(),
+                crown_radius: 0.0,
             });
         }
 
@@ -684,6 +782,8 @@ impl Scene {
             }
             Ok(out)
         };
+        let paving = resolve_paving(&spec.paving, &extent, origin)?;
+        let overhead = resolve_overhead(&spec.overhead, &extent, origin)?;
         let curriculum_region = proposal_areas("curriculum_region", &spec.curriculum_region)?;
         if curriculum_region.is_empty() {
             return Err(invalid(origin, "curriculum_region", "at least one area is required".into()));
@@ -697,6 +797,8 @@ impl Scene {
             extent,
             regions,
             obstacles,
+            paving,
+            overhead,
             curriculum_region,
             enlarged_curriculum_region,
             goal_center,
@@ -863,8 +965,19 @@ mod tests {
             ("center = [10.4, -5.6]", "center = [nan, -5.6]", ".center"),
             ("center = [10.4, -5.6]", "center = [100.0, -5.6]", "outside the world"),
             ("radius = 0.12", "radius = inf", ".radius"),
-            ("rect = [9.0, -35.0, 20.0, -9.0]", "rect = [9.0, -35.0, inf, -9.0]", "obstacles[0].rect"),
-            ("height = 14.0", "height = 1e30", "obstacles[0].height"),
+            ("rect = [9.0, 9.0, 13.0, 16.0]", "rect = [9.0, 9.0, inf, 16.0]", "obstacles[0].rect"),
+            ("height = 15.0", "height = 1e30", "obstacles[0].height"),
+            ("tone = 0.50", "tone = 1.5", "paving[0].tone"),
+            ("size = 0.5", "size = 0.0", "paving[0].size"),
+            ("kerb = 0.30", "kerb = nan", "paving[0].kerb"),
+            ("rect = [-30.0, 9.4, -9.4, 35.0]", "rect = [-130.0, 9.4, -109.4, 35.0]", "paving[4]"),
+            ("bay = 2.0, storey = 3.2", "bay = 0.0, storey = 3.2", "obstacles[0].facade.bay"),
+            ("trim = 0.88", "trim = -1.0", "obstacles[0].facade.trim"),
+            ("radius = 0.12\nheight = 4.5", "radius = 0.12\nheight = 4.5\ncrown_radius = 2.0", "crown_radius"),
+            ("crown_radius = 2.2", "crown_radius = 0.0", ".crown_radius"),
+            ("radius = 0.12\nheight = 4.5", "radius = 0.12\nheight = 4.5\nfacade = { bay = 3.0 }", "only buildings"),
+            ("base = 2.4", "base = 1.0", "overhead[0].base"),
+            ("top = 2.75", "top = 2.0", "overhead[0].top"),
             ("wall_height = 3.0", "wall_height = 1e30", "wall_height"),
             (goal, "polygon = [[18.0, 5.0], [22.0, 5.0], [22.0, 9.0], [18.0, 9.0], [nan, nan]]", "regions[8].polygon"),
             (goal, "polygon = [[18.0, 5.0], [22.0, 9.0], [22.0, 5.0], [18.0, 8.0]]", "edges 0 and 2 cross"),
@@ -894,6 +1007,34 @@ mod tests {
             assert_eq!(inside(&paper, p), p.id < 8, "point {}", p.id);
             assert!(inside(&enlarged, p), "point {} must be proposable in the enlarged region", p.id);
         }
+    }
+
+    /// The recognisable reference scene changes only looks: the task — regions,
+    /// rewards, starts, curriculum areas, validation points — is the first version's,
+    /// so results on the two stay comparable.
+    #[test]
+    fn the_reference_scene_poses_the_plain_scenes_task() {
+        let (new, plain) = (Scene::reference().spec, Scene::built_in("corner_plain").unwrap().spec);
+        assert_eq!(new.extent, plain.extent);
+        assert_eq!(new.cell_size, plain.cell_size);
+        assert_eq!(new.rewards, plain.rewards);
+        assert_eq!(new.regions, plain.regions);
+        assert_eq!(new.markings, plain.markings);
+        assert_eq!(new.first_task, plain.first_task);
+        assert_eq!(new.fixed_start, plain.fixed_start);
+        assert_eq!(new.curriculum_region, plain.curriculum_region);
+        assert_eq!(new.enlarged_curriculum_region, plain.enlarged_curriculum_region);
+        assert_eq!(new.validation_points, plain.validation_points);
+        assert!(plain.paving.is_empty() && plain.overhead.is_empty());
+        assert!(!new.paving.is_empty() && !new.overhead.is_empty());
+    }
+
+    #[test]
+    fn built_in_scenes_load_by_name_and_an_unknown_name_lists_them() {
+        let s = Scene::load(Path::new("built-in:corner_plain")).unwrap();
+        assert_eq!(s.origin, "built-in:corner_plain");
+        let err = Scene::load(Path::new("built-in:nowhere")).unwrap_err().to_string();
+        assert!(err.contains("built-in:corner") && err.contains("built-in:corner_plain"), "{err}");
     }
 
     #[test]

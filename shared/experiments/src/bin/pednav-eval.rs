@@ -7,6 +7,8 @@
 //! pednav-eval --run-dir docs/results/R --out /tmp/R  # a committed result, re-evaluated
 //! pednav-eval --run-dir runs/X --checkpoint DIR      # another checkpoint of the same run
 //! pednav-eval --policy random --runs 2               # the random-walk baseline (no run needed)
+//! pednav-eval --policy untrained --config deploy/configs/cpu_reduced.toml --init-seed 3
+//!                                                    # the networks a run starts with, before any update
 //! pednav-eval --policy oracle --runs 1               # the planner, an upper reference
 //! pednav-eval --run-dir runs/X --gif 3:180:0         # also a GIF of point 3, yaw 180°, run 0
 //! ```
@@ -30,6 +32,9 @@ use pednav_runtime::RunConfig;
 enum PolicyArg {
     /// The checkpoint's policy.
     Learned,
+    /// The learned policy's networks as initialised, before any update: what acts
+    /// in a run's first episodes (weights from `--init-seed`, default the config's seed).
+    Untrained,
     /// Uniform random actions (random-walk baseline).
     Random,
     /// The oracle planner.
@@ -57,6 +62,14 @@ impl ActionMode {
 #[derive(Parser, Debug)]
 #[command(version, about = "Validation protocol of the paper (§V-C) on a pednav checkpoint: Table III, CSV, Fig. 5")]
 struct Cli {
+    /// Run config for a policy without a run (`untrained`, `random`, `oracle`): its
+    /// scene, simulator and networks (default: the reference scene and defaults).
+    #[arg(long, conflicts_with = "run_dir")]
+    config: Option<PathBuf>,
+    /// `--policy untrained`: the seed its networks are initialised from (default:
+    /// the config's `seed`, as the actors and the learner of a run do).
+    #[arg(long)]
+    init_seed: Option<u64>,
     /// Run directory whose latest checkpoint and config are evaluated (required for `--policy learned`).
     #[arg(long)]
     run_dir: Option<PathBuf>,
@@ -115,27 +128,48 @@ struct Cli {
 /// " (how the learned policy acts)" for the progress line and the table's title;
 /// nothing for the random walk and the oracle.
 fn action_label(cli: &Cli) -> String {
-    if cli.policy == PolicyArg::Learned { format!(" ({})", cli.mode.describe()) } else { String::new() }
+    if matches!(cli.policy, PolicyArg::Learned | PolicyArg::Untrained) {
+        format!(" ({})", cli.mode.describe())
+    } else {
+        String::new()
+    }
 }
 
 fn kind(cli: &Cli) -> PolicyKind {
     match cli.policy {
-        PolicyArg::Learned => PolicyKind::Learned { deterministic: cli.mode == ActionMode::Mode },
+        PolicyArg::Learned | PolicyArg::Untrained => {
+            PolicyKind::Learned { deterministic: cli.mode == ActionMode::Mode }
+        }
         PolicyArg::Random => PolicyKind::Random,
         PolicyArg::Oracle => PolicyKind::Oracle,
     }
 }
 
 fn setup(cli: &Cli) -> Result<(RunConfig, Option<(pednav_nets::NetsConfig, pednav_nets::DsacNets)>)> {
+    // The run's config, else --config, else the defaults (reference scene).
+    let config = || -> Result<RunConfig> {
+        match (&cli.run_dir, &cli.config) {
+            (Some(dir), _) => Ok(RunConfig::load(&dir.join("config.toml"))?),
+            (None, Some(path)) => Ok(RunConfig::load(path)?),
+            (None, None) => Ok(RunConfig::default()),
+        }
+    };
     match (&cli.run_dir, cli.policy) {
         (Some(dir), PolicyArg::Learned) => {
             let (cfg, nets) = load_policy(dir, cli.checkpoint.as_deref(), &cli.device.open()?)?;
             let nc = cfg.nets.clone();
             Ok((cfg, Some((nc, nets))))
         }
-        (Some(dir), _) => Ok((RunConfig::load(&dir.join("config.toml"))?, None)),
         (None, PolicyArg::Learned) => bail!("--policy learned needs --run-dir (a run with a checkpoint)"),
-        (None, _) => Ok((RunConfig::default(), None)),
+        (_, PolicyArg::Untrained) => {
+            if cli.run_dir.is_none() && cli.config.is_none() {
+                bail!("--policy untrained needs --config FILE (or --run-dir): the networks it builds are the config's");
+            }
+            let cfg = config()?;
+            let nets = pednav_nets::DsacNets::new(&cfg.nets, &cli.device.open()?, cli.init_seed.unwrap_or(cfg.seed))?;
+            Ok((cfg.clone(), Some((cfg.nets, nets))))
+        }
+        _ => Ok((config()?, None)),
     }
 }
 
@@ -284,6 +318,12 @@ fn run_workers(cli: &Cli, out: &Path) -> Result<Vec<EpisodeResult>> {
         }
         if let Some(c) = &cli.checkpoint {
             cmd.arg("--checkpoint").arg(c);
+        }
+        if let Some(c) = &cli.config {
+            cmd.arg("--config").arg(c);
+        }
+        if let Some(s) = cli.init_seed {
+            cmd.args(["--init-seed", &s.to_string()]);
         }
         cmd.args(["--mode", &format!("{:?}", cli.mode).to_lowercase()]);
         cmd.args(["--policy", &format!("{:?}", cli.policy).to_lowercase()])

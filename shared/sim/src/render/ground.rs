@@ -6,12 +6,16 @@
 //! distinct in an 84×84 greyscale view):
 //! - road: dark asphalt (≈0.25) with fine seeded grain; painted markings ≈0.85;
 //! - zebra: 0.5 m white stripes (≈0.9) alternating with asphalt along the walking axis;
-//! - sidewalks (both kinds look alike — the goal side is told apart by the layout):
-//!   light paving (≈0.62) with darker joints every 0.6 m;
-//! - kerb: a 0.2 m band of bright kerb stone (≈0.85) where sidewalk meets road or zebra;
+//! - sidewalks (both kinds alike — a region's kind never shows, its place does):
+//!   the scene's paving where it has one (slabs, bricks, cobbles or concrete
+//!   panels in their own tone, [`crate::appearance`]), else light slabs (≈0.62)
+//!   with darker joints every 0.6 m;
+//! - kerb: a 0.2 m band of kerb stone (the paving's, default bright ≈0.85) where
+//!   sidewalk meets road or zebra;
 //! - goal: a 1 m checkerboard of white and dark tiles (a paved plaza), bold enough
 //!   to be seen from the zebra crossing through the 135° lens at 84 px.
 
+use crate::appearance::{Paving, PavingLook, PavingStyle};
 use crate::region_map::RegionMap;
 use crate::scene::{RegionKind, Scene};
 
@@ -27,13 +31,72 @@ pub struct GroundTexture {
     pub data: Vec<u8>,
 }
 
-/// Deterministic per-texel grain in [−1, 1] (an integer hash, no RNG state).
-fn grain(i: usize, j: usize) -> f32 {
-    let mut h = (i as u32).wrapping_mul(0x9E37_79B1) ^ (j as u32).wrapping_mul(0x85EB_CA77);
+/// Deterministic value in [−1, 1] of an integer pair (a hash, no RNG state).
+fn hash(i: u32, j: u32) -> f32 {
+    let mut h = i.wrapping_mul(0x9E37_79B1) ^ j.wrapping_mul(0x85EB_CA77);
     h ^= h >> 15;
     h = h.wrapping_mul(0x2C1B_3C6D);
     h ^= h >> 12;
     (h & 0xFFFF) as f32 / 32767.5 - 1.0
+}
+
+/// Per-texel grain in [−1, 1].
+fn grain(i: usize, j: usize) -> f32 {
+    hash(i as u32, j as u32)
+}
+
+/// Per-stone tone variation in [−1, 1] of the stone with (possibly negative) indices `(a, b)`.
+fn stone(a: f32, b: f32) -> f32 {
+    hash((a as i32) as u32 ^ 0x5bd1_e995, (b as i32) as u32)
+}
+
+/// Width of a joint between paving stones, metres (one texel of the default 0.05 m cell).
+const JOINT: f32 = 0.05;
+
+/// Grey level of paving `p` at world point `(x, y)`; `g` is the texel's grain.
+fn paving_grey(p: PavingLook, x: f32, y: f32, g: f32) -> f32 {
+    let s = p.size;
+    match p.style {
+        PavingStyle::Slabs | PavingStyle::Concrete => {
+            if x.rem_euclid(s) < JOINT || y.rem_euclid(s) < JOINT {
+                p.joint
+            } else {
+                let variation = if p.style == PavingStyle::Concrete { 0.015 } else { 0.02 };
+                p.tone + variation * g
+            }
+        }
+        PavingStyle::Bricks => {
+            // Running bond: rows `s / 2` wide along x, every other row shifted by half a brick.
+            let w = 0.5 * s;
+            let row = (y / w).floor();
+            let xs = x + if (row as i64).rem_euclid(2) == 1 { 0.5 * s } else { 0.0 };
+            if xs.rem_euclid(s) < JOINT || y.rem_euclid(w) < JOINT {
+                p.joint
+            } else {
+                p.tone + 0.05 * stone((xs / s).floor(), row) + 0.015 * g
+            }
+        }
+        PavingStyle::Lawn => p.tone + 0.07 * stone((x / s).floor(), (y / s).floor()) + 0.03 * g,
+        PavingStyle::Cobbles => {
+            // Square setts in rows, each row shifted by its own amount; wide joints.
+            let row = (y / s).floor();
+            let xs = x + s * 0.5 * (stone(row, 7.0) + 1.0);
+            if xs.rem_euclid(s) < 1.5 * JOINT || y.rem_euclid(s) < 1.5 * JOINT {
+                p.joint
+            } else {
+                p.tone + 0.08 * stone((xs / s).floor(), row) + 0.02 * g
+            }
+        }
+    }
+}
+
+/// The paving at a point: the last paved area containing it, else the default slabs.
+fn paving_at(pavings: &[Paving], x: f32, y: f32) -> PavingLook {
+    pavings
+        .iter()
+        .rev()
+        .find(|p| p.bounds.contains(x, y) && p.area.contains(x, y))
+        .map_or(Paving::DEFAULT, Paving::look)
 }
 
 fn to_u8(v: f32) -> u8 {
@@ -73,12 +136,8 @@ pub fn bake_level0(scene: &Scene, map: &RegionMap) -> Vec<u8> {
                             || is_carriageway(ii, jj + k)
                             || is_carriageway(ii, jj - k)
                     });
-                    if near_road {
-                        0.85 + 0.02 * g
-                    } else {
-                        let joint = x.rem_euclid(0.6) < 0.05 || y.rem_euclid(0.6) < 0.05;
-                        if joint { 0.48 } else { 0.62 + 0.02 * g }
-                    }
+                    let paving = paving_at(&scene.paving, x, y);
+                    if near_road { paving.kerb + 0.02 * g } else { paving_grey(paving, x, y, g) }
                 }
                 RegionKind::Goal => {
                     let checker = (x.floor() as i64 + y.floor() as i64).rem_euclid(2) == 0;

@@ -2,11 +2,15 @@
 //!
 //! Invariant: every obstacle's drawn volume equals its collider (boxes and
 //! prisms approximating the cylinders, same footprint and height), except the
-//! purely visual additions documented here: tree crowns (above head height,
-//! 2.3 m up, so never in the agent's way). Building windows are not geometry: wall
-//! vertices carry a facade code and the fragment shader paints an anti-aliased
-//! window grid (3 m × 3.5 m bays, 1.2 m × 1.5 m windows from 3 m up to 0.8 m below
-//! the roof). Faces carry a baked shade: base shade × `0.55 + 0.45·max(0, n·sun)`.
+//! purely visual additions documented here: tree crowns (two stacked frustums
+//! from 2.3 m up, above head height, so never in the agent's way) and the scene's overhead details (at
+//! least [`crate::appearance::MIN_OVERHEAD_BASE`] up, no collider). Facades are
+//! not geometry: wall vertices carry the building's [`Facade`] as codes and lit
+//! grey levels, and the fragment shader paints it anti-aliased — the windows of
+//! the upper floors (from 3 m up to 0.8 m below the roof, one per bay and storey)
+//! and the ground floor (shop windows under a sign band, or arcades). Faces carry
+//! a baked shade: base shade × `0.55 + 0.45·max(0, n·sun)`, the facade's glass and
+//! trim lit the same way.
 //!
 //! Cost model (llvmpipe shades every vertex of every view): the mesh is indexed
 //! (4 vertices per quad), and faces no camera can see are left out — roofs and
@@ -15,22 +19,68 @@
 
 use bytemuck::{Pod, Zeroable};
 
+use crate::appearance::{Facade, GroundFloor, WindowStyle};
 use crate::region_map::RegionMap;
 use crate::scene::{Footprint, ObstacleKind, Scene};
 
-/// One vertex: world position, ground-texture uv or facade data, baked shade, textured flag.
+/// One vertex: world position, ground-texture uv, baked shade, textured flag and
+/// the facade of a building's wall.
 #[repr(C)]
 #[derive(Debug, Clone, Copy, Pod, Zeroable)]
 pub struct Vertex {
     /// World position (x east, y north, z up), metres.
     pub pos: [f32; 3],
-    /// Ground: texture coordinate. Walls of buildings: `[facade axis, window top]`
-    /// with axis 1 = wall runs along x, 2 = along y; `[0, 0]` elsewhere.
+    /// Ground: texture coordinate; `[0, 0]` elsewhere.
     pub uv: [f32; 2],
     /// Grey level, or a multiplier of the texture when textured.
     pub shade: f32,
-    /// 1 for ground, 0 for everything else.
+    /// 1 for ground, 0 for everything else (−1: the sky quad).
     pub textured: f32,
+    /// Walls of buildings: `[axis, window top, window style, ground-floor style]`
+    /// with axis 1 = the wall runs along x, 2 = along y, 0 = not a wall (then the
+    /// rest is unused); styles as [`window_code`] and [`ground_floor_code`].
+    pub facade: [f32; 4],
+    /// Walls of buildings: `[bay, storey, lit glass grey, lit trim grey]`.
+    pub facade_look: [f32; 4],
+}
+
+/// The shader's code of a window style.
+pub fn window_code(w: WindowStyle) -> f32 {
+    match w {
+        WindowStyle::Grid => 0.0,
+        WindowStyle::Tall => 1.0,
+        WindowStyle::Ribbon => 2.0,
+        WindowStyle::Curtain => 3.0,
+        WindowStyle::Blank => 4.0,
+    }
+}
+
+/// The shader's code of a ground floor.
+pub fn ground_floor_code(g: GroundFloor) -> f32 {
+    match g {
+        GroundFloor::Plain => 0.0,
+        GroundFloor::Shop => 1.0,
+        GroundFloor::Arcade => 2.0,
+    }
+}
+
+/// The facade data of one wall of a building: which way it runs, where its windows
+/// stop, and its grey levels lit for the wall's normal `n`.
+#[derive(Debug, Clone, Copy)]
+struct Wall<'a> {
+    facade: &'a Facade,
+    window_top: f32,
+}
+
+impl Wall<'_> {
+    fn vertex_data(&self, axis: f32, base: f32, n: [f32; 3]) -> ([f32; 4], [f32; 4]) {
+        let f = self.facade;
+        let glass = f.glass.unwrap_or(base * 0.45);
+        (
+            [axis, self.window_top, window_code(f.windows), ground_floor_code(f.ground_floor)],
+            [f.bay, f.storey, lit(glass, n), lit(f.trim, n)],
+        )
+    }
 }
 
 /// Shade of the sky (the clear colour, also the haze colour).
@@ -58,72 +108,107 @@ pub struct MeshBuilder {
 
 impl MeshBuilder {
     fn vertex(&mut self, pos: [f32; 3], uv: [f32; 2], shade: f32, textured: f32) -> u32 {
-        self.vertices.push(Vertex { pos, uv, shade, textured });
+        self.vertices.push(Vertex { pos, uv, shade, textured, facade: [0.0; 4], facade_look: [0.0; 4] });
         self.vertices.len() as u32 - 1
     }
 
-    /// A planar quad a-b-c-d (either winding; culling is off) with facade data `uv`.
-    fn quad_uv(&mut self, corners: [[f32; 3]; 4], uv: [f32; 2], shade: f32) {
-        let k = corners.map(|p| self.vertex(p, uv, shade, 0.0));
+    /// A planar quad a-b-c-d (either winding; culling is off) with facade data.
+    fn quad_facade(&mut self, corners: [[f32; 3]; 4], shade: f32, facade: ([f32; 4], [f32; 4])) {
+        let k = corners.map(|pos| {
+            self.vertices.push(Vertex {
+                pos,
+                uv: [0.0; 2],
+                shade,
+                textured: 0.0,
+                facade: facade.0,
+                facade_look: facade.1,
+            });
+            self.vertices.len() as u32 - 1
+        });
         self.indices.extend_from_slice(&[k[0], k[1], k[2], k[0], k[2], k[3]]);
     }
 
     fn quad(&mut self, corners: [[f32; 3]; 4], shade: f32) {
-        self.quad_uv(corners, [0.0, 0.0], shade);
+        self.quad_facade(corners, shade, ([0.0; 4], [0.0; 4]));
     }
 
-    /// Axis-aligned box from the ground to `z1`; `window_top > 0` paints windows on its walls.
-    fn cuboid(&mut self, min: [f32; 2], max: [f32; 2], z1: f32, base: f32, window_top: f32) {
+    /// Axis-aligned box from `z0` to `z1`; a `wall` paints its facade on the sides.
+    fn cuboid(&mut self, min: [f32; 2], max: [f32; 2], [z0, z1]: [f32; 2], base: f32, wall: Option<Wall<'_>>) {
         let [x0, y0] = min;
         let [x1, y1] = max;
-        let along_x = [if window_top > 0.0 { 1.0 } else { 0.0 }, window_top];
-        let along_y = [if window_top > 0.0 { 2.0 } else { 0.0 }, window_top];
-        self.quad_uv([[x0, y0, 0.0], [x1, y0, 0.0], [x1, y0, z1], [x0, y0, z1]], along_x, lit(base, [0.0, -1.0, 0.0]));
-        self.quad_uv([[x1, y1, 0.0], [x0, y1, 0.0], [x0, y1, z1], [x1, y1, z1]], along_x, lit(base, [0.0, 1.0, 0.0]));
-        self.quad_uv([[x0, y1, 0.0], [x0, y0, 0.0], [x0, y0, z1], [x0, y1, z1]], along_y, lit(base, [-1.0, 0.0, 0.0]));
-        self.quad_uv([[x1, y0, 0.0], [x1, y1, 0.0], [x1, y1, z1], [x1, y0, z1]], along_y, lit(base, [1.0, 0.0, 0.0]));
+        let side = |axis: f32, n: [f32; 3]| match wall {
+            Some(w) => w.vertex_data(axis, base, n),
+            None => ([0.0; 4], [0.0; 4]),
+        };
+        let sides = [
+            ([[x0, y0, z0], [x1, y0, z0], [x1, y0, z1], [x0, y0, z1]], 1.0, [0.0, -1.0, 0.0]),
+            ([[x1, y1, z0], [x0, y1, z0], [x0, y1, z1], [x1, y1, z1]], 1.0, [0.0, 1.0, 0.0]),
+            ([[x0, y1, z0], [x0, y0, z0], [x0, y0, z1], [x0, y1, z1]], 2.0, [-1.0, 0.0, 0.0]),
+            ([[x1, y0, z0], [x1, y1, z0], [x1, y1, z1], [x1, y0, z1]], 2.0, [1.0, 0.0, 0.0]),
+        ];
+        for (corners, axis, n) in sides {
+            self.quad_facade(corners, lit(base, n), side(axis, n));
+        }
         if z1 <= MAX_EYE_HEIGHT {
             self.quad([[x0, y0, z1], [x1, y0, z1], [x1, y1, z1], [x0, y1, z1]], lit(base, [0.0, 0.0, 1.0]));
+        }
+        if z0 > 0.0 {
+            // The underside of something overhead.
+            self.quad([[x0, y0, z0], [x1, y0, z0], [x1, y1, z0], [x0, y1, z0]], lit(base, [0.0, 0.0, -1.0]));
         }
     }
 
     /// Vertical prism with `segments` sides approximating a cylinder.
     fn cylinder(&mut self, c: [f32; 2], r: f32, z0: f32, z1: f32, base: f32, segments: usize) {
-        let pt = |k: usize| {
+        self.frustum(c, [r, r], [z0, z1], base, segments);
+    }
+
+    /// Vertical frustum with `segments` sides, radius `r0` at `z0` and `r1` at `z1`;
+    /// a cap on top when a camera can see it, underneath when it floats.
+    fn frustum(&mut self, c: [f32; 2], [r0, r1]: [f32; 2], [z0, z1]: [f32; 2], base: f32, segments: usize) {
+        let pt = |k: usize, r: f32| {
             let a = k as f32 / segments as f32 * std::f32::consts::TAU;
             [c[0] + r * a.cos(), c[1] + r * a.sin()]
         };
+        // Side normals lean by the slope of the frustum (up when it narrows upwards).
+        let lean = (r0 - r1) / (z1 - z0).max(1e-3);
+        let norm = (1.0 + lean * lean).sqrt();
         for k in 0..segments {
-            let (a, b) = (pt(k), pt(k + 1));
+            let (a0, b0, a1, b1) = (pt(k, r0), pt(k + 1, r0), pt(k, r1), pt(k + 1, r1));
             let mid = (k as f32 + 0.5) / segments as f32 * std::f32::consts::TAU;
-            let shade = lit(base, [mid.cos(), mid.sin(), 0.0]);
-            self.quad([[a[0], a[1], z0], [b[0], b[1], z0], [b[0], b[1], z1], [a[0], a[1], z1]], shade);
+            let shade = lit(base, [mid.cos() / norm, mid.sin() / norm, lean / norm]);
+            self.quad([[a0[0], a0[1], z0], [b0[0], b0[1], z0], [b1[0], b1[1], z1], [a1[0], a1[1], z1]], shade);
         }
         if z1 <= MAX_EYE_HEIGHT {
-            let top = self.vertex([c[0], c[1], z1], [0.0; 2], lit(base, [0.0, 0.0, 1.0]), 0.0);
-            let rim: Vec<u32> = (0..segments)
-                .map(|k| {
-                    let p = pt(k);
-                    self.vertex([p[0], p[1], z1], [0.0; 2], lit(base, [0.0, 0.0, 1.0]), 0.0)
-                })
-                .collect();
-            for k in 0..segments {
-                self.indices.extend_from_slice(&[top, rim[k], rim[(k + 1) % segments]]);
-            }
+            self.disc(c, r1, z1, segments, lit(base, [0.0, 0.0, 1.0]));
         }
         if z0 > 0.0 {
             // Underside (tree crowns are seen from below).
-            let bottom = self.vertex([c[0], c[1], z0], [0.0; 2], base * 0.5, 0.0);
-            let rim: Vec<u32> = (0..segments)
-                .map(|k| {
-                    let p = pt(k);
-                    self.vertex([p[0], p[1], z0], [0.0; 2], base * 0.5, 0.0)
-                })
-                .collect();
-            for k in 0..segments {
-                self.indices.extend_from_slice(&[bottom, rim[k], rim[(k + 1) % segments]]);
-            }
+            self.disc(c, r0, z0, segments, base * 0.5);
         }
+    }
+
+    /// A horizontal polygon of `segments` sides at height `z`.
+    fn disc(&mut self, c: [f32; 2], r: f32, z: f32, segments: usize, shade: f32) {
+        let centre = self.vertex([c[0], c[1], z], [0.0; 2], shade, 0.0);
+        let rim: Vec<u32> = (0..segments)
+            .map(|k| {
+                let a = k as f32 / segments as f32 * std::f32::consts::TAU;
+                self.vertex([c[0] + r * a.cos(), c[1] + r * a.sin(), z], [0.0; 2], shade, 0.0)
+            })
+            .collect();
+        for k in 0..segments {
+            self.indices.extend_from_slice(&[centre, rim[k], rim[(k + 1) % segments]]);
+        }
+    }
+
+    /// A tree's crown of radius `r` from 2.3 m up to `top`: widening to its full
+    /// radius at 45 % of its height, then narrowing to a third of it.
+    fn crown(&mut self, c: [f32; 2], r: f32, top: f32, base: f32) {
+        let z0 = 2.3;
+        let mid = z0 + 0.45 * (top - z0).max(0.0);
+        self.frustum(c, [0.6 * r, r], [z0, mid], base, 8);
+        self.frustum(c, [r, 0.35 * r], [mid, top.max(mid + 0.1)], base, 8);
     }
 }
 
@@ -147,32 +232,42 @@ pub struct SceneMesh {
     pub vertices: Vec<Vertex>,
     /// Triangle indices.
     pub indices: Vec<u32>,
-    /// One part per obstacle, then the ground; together they cover `indices` in order.
+    /// One part per obstacle, one per overhead detail, then the ground; together
+    /// they cover `indices` in order.
     pub parts: Vec<Part>,
 }
 
 /// Build the full static mesh of a scene.
 pub fn build(scene: &Scene, map: &RegionMap) -> SceneMesh {
     let mut m = MeshBuilder::default();
-    let mut parts = Vec::with_capacity(scene.obstacles.len() + 1);
+    let mut parts = Vec::with_capacity(scene.obstacles.len() + scene.overhead.len() + 1);
     for o in &scene.obstacles {
         let start = m.indices.len() as u32;
         match (o.kind, o.footprint) {
-            (ObstacleKind::Building, Footprint::Box(r)) => m.cuboid(r.min, r.max, o.height, o.shade, o.height - 0.8),
+            (ObstacleKind::Building, Footprint::Box(r)) => {
+                let wall = Wall { facade: &o.facade, window_top: o.height - 0.8 };
+                m.cuboid(r.min, r.max, [0.0, o.height], o.shade, Some(wall));
+            }
             (ObstacleKind::Tree, Footprint::Cylinder { center, radius }) => {
                 m.cylinder(center, radius, 0.0, o.height, o.shade, 6);
-                m.cylinder(center, 1.4, 2.3, o.height, (o.shade + 0.15).min(1.0), 8);
+                m.crown(center, o.crown_radius, o.height, (o.shade + 0.15).min(1.0));
             }
-            (_, Footprint::Box(r)) => m.cuboid(r.min, r.max, o.height, o.shade, 0.0),
+            (_, Footprint::Box(r)) => m.cuboid(r.min, r.max, [0.0, o.height], o.shade, None),
             (_, Footprint::Cylinder { center, radius }) => m.cylinder(center, radius, 0.0, o.height, o.shade, 6),
         }
         let (center, radius) = match o.footprint {
             Footprint::Box(r) => {
                 ([(r.min[0] + r.max[0]) * 0.5, (r.min[1] + r.max[1]) * 0.5], 0.5 * r.width().hypot(r.height()))
             }
-            Footprint::Cylinder { center, radius } => (center, if o.kind == ObstacleKind::Tree { 1.4 } else { radius }),
+            Footprint::Cylinder { center, radius } => (center, radius.max(o.crown_radius)),
         };
         parts.push(Part { start, end: m.indices.len() as u32, center, radius });
+    }
+    for o in &scene.overhead {
+        let start = m.indices.len() as u32;
+        m.cuboid(o.rect.min, o.rect.max, [o.base, o.top], o.shade, None);
+        let (r, center) = (o.rect, [(o.rect.min[0] + o.rect.max[0]) * 0.5, (o.rect.min[1] + o.rect.max[1]) * 0.5]);
+        parts.push(Part { start, end: m.indices.len() as u32, center, radius: 0.5 * r.width().hypot(r.height()) });
     }
     let ground_start = m.indices.len() as u32;
     // Ground, drawn last so that early depth testing skips its (textured, costly)
@@ -213,6 +308,13 @@ pub fn part_visible(part: &Part, x: f32, y: f32, yaw: f32, fov: f32) -> bool {
 /// A full-view quad at the far plane in clip space, drawn (for domain-randomised
 /// views only) so that the sky takes the view's brightness and contrast.
 pub fn sky_quad() -> [Vertex; 4] {
-    let v = |x: f32, y: f32| Vertex { pos: [x, y, 2.0], uv: [0.0; 2], shade: SKY_SHADE, textured: -1.0 };
+    let v = |x: f32, y: f32| Vertex {
+        pos: [x, y, 2.0],
+        uv: [0.0; 2],
+        shade: SKY_SHADE,
+        textured: -1.0,
+        facade: [0.0; 4],
+        facade_look: [0.0; 4],
+    };
     [v(-1.0, -1.0), v(1.0, -1.0), v(1.0, 1.0), v(-1.0, 1.0)]
 }

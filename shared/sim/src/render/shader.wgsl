@@ -1,8 +1,8 @@
 // pednav first-person renderer: two pipelines over one vertex format. The ground
-// (fs_ground) samples the baked ground texture; walls, poles and trees (fs_flat)
-// carry a baked per-face shade, and building walls get a procedural,
-// anti-aliased window grid. Output: one greyscale
-// channel (R8Unorm target).
+// (fs_ground) samples the baked ground texture; walls, poles, trees and overhead
+// details (fs_flat) carry a baked per-face shade, and building walls get their
+// facade painted procedurally and anti-aliased (mesh.rs documents the codes).
+// Output: one greyscale channel (R8Unorm target).
 
 struct View {
     view_proj: mat4x4<f32>,
@@ -22,6 +22,8 @@ struct VsOut {
     @location(1) shade: f32,
     @location(2) textured: f32,
     @location(3) world: vec3<f32>,
+    @location(4) facade: vec4<f32>,
+    @location(5) facade_look: vec4<f32>,
 };
 
 @vertex
@@ -30,6 +32,8 @@ fn vs_main(
     @location(1) uv: vec2<f32>,
     @location(2) shade: f32,
     @location(3) textured: f32,
+    @location(4) facade: vec4<f32>,
+    @location(5) facade_look: vec4<f32>,
 ) -> VsOut {
     var out: VsOut;
     if (textured < -0.5) {
@@ -43,6 +47,8 @@ fn vs_main(
     out.uv = uv;
     out.shade = shade;
     out.textured = max(textured, 0.0);
+    out.facade = facade;
+    out.facade_look = facade_look;
     return out;
 }
 
@@ -72,16 +78,46 @@ fn fs_ground(in: VsOut) -> @location(0) vec4<f32> {
     return finish(in.shade * textureSample(ground_tex, ground_smp, in.uv).r, in.world);
 }
 
-// Everything else: flat baked shade; building walls get the window grid.
+// Everything else: flat baked shade; the walls of buildings get their facade.
+// facade = [axis (0: not a wall, 1: runs along x, 2: along y), window top,
+//           window style (0 grid, 1 tall, 2 ribbon, 3 curtain, 4 blank),
+//           ground floor (0 plain, 1 shop, 2 arcade)]
+// facade_look = [bay, storey, lit glass grey, lit trim grey]
 @fragment
 fn fs_flat(in: VsOut) -> @location(0) vec4<f32> {
+    let f = in.facade;
+    let look = in.facade_look;
     // Differentiate unconditionally: derivatives need uniform control flow.
-    let along = select(in.world.y, in.world.x, in.uv.x < 1.5);
-    let u = along / 3.0;
-    let v = (in.world.z - 3.0) / 3.5;
+    let along = select(in.world.y, in.world.x, f.x < 1.5);
+    let u = along / max(look.x, 0.5);
+    let v = (in.world.z - 3.0) / max(look.y, 1.0);
+    let g = in.world.z / 3.0;
     let du = fwidth(u);
     let dv = fwidth(v);
-    let in_band = select(0.0, 1.0, in.uv.x > 0.5 && in.world.z >= 3.0 && in.world.z <= in.uv.y);
-    let window = box_coverage(u, du, 0.3, 0.7) * box_coverage(v, dv, 0.0, 0.43) * in_band;
-    return finish(in.shade * mix(1.0, 0.45, window), in.world);
+    let dg = fwidth(g);
+    let wall = f.x > 0.5;
+    let upper = select(0.0, 1.0, wall && in.world.z >= 3.0 && in.world.z <= f.y);
+    let lower = select(0.0, 1.0, wall && in.world.z < 3.0);
+
+    // Upper floors: one window per bay and storey, of the building's style.
+    let grid = box_coverage(u, du, 0.3, 0.7) * box_coverage(v, dv, 0.0, 0.43);
+    let tall = box_coverage(u, du, 0.38, 0.62) * box_coverage(v, dv, 0.08, 0.72);
+    let ribbon = box_coverage(u, du, 0.04, 1.0) * box_coverage(v, dv, 0.12, 0.6);
+    let curtain = box_coverage(u, du, 0.05, 1.0) * box_coverage(v, dv, 0.1, 1.0);
+    let style = f.z;
+    let window = select(select(select(select(0.0, curtain, style < 3.5), ribbon, style < 2.5), tall, style < 1.5), grid, style < 0.5);
+
+    // Ground floor: shop windows under a sign band, or dark arcade openings.
+    let shop_glass = box_coverage(u, du, 0.06, 0.94) * box_coverage(g, dg, 0.1, 0.8);
+    let shop_sign = box_coverage(g, dg, 0.84, 0.97);
+    let arcade = box_coverage(u, du, 0.15, 0.85) * box_coverage(g, dg, 0.0, 0.83);
+    let ground = f.w;
+    let opening = select(select(arcade, shop_glass, ground < 1.5), 0.0, ground < 0.5);
+    let opening_grey = select(look.z, 0.5 * look.z, ground > 1.5);
+    let sign = select(0.0, shop_sign, ground > 0.5 && ground < 1.5);
+
+    var grey = mix(in.shade, look.z, window * upper);
+    grey = mix(grey, opening_grey, opening * lower);
+    grey = mix(grey, look.w, sign * lower);
+    return finish(grey, in.world);
 }
