@@ -92,8 +92,9 @@ fn buildings_cannot_be_walked_through_and_collisions_cost_three() {
 #[test]
 fn reaching_the_goal_terminates_and_t_max_truncates() {
     let w = world(SimConfig { t_max: 30, ..SimConfig::default() });
-    // First task: 6 m west of the goal (x ≥ 18), facing east: 12 steps of 0.5 m.
-    let steps = walk(&w, w.scene.first_task(), [1.0, 0.0, 0.0], 30);
+    // 6 m west of the goal (x ≥ 18), facing east: 12 steps of 0.5 m.
+    let facing_goal = Pose::from_degrees(12.0, 7.0, 0.0);
+    let steps = walk(&w, facing_goal, [1.0, 0.0, 0.0], 30);
     let end = steps.iter().position(|t| t.terminated).expect("reaches the goal");
     assert_eq!(steps[end].region, RegionKind::Goal);
     assert!(steps[..end].iter().all(|t| !t.terminated && !t.truncated));
@@ -162,9 +163,9 @@ fn same_seed_gives_identical_frames_and_rewards() {
 fn pedestrian_env_follows_the_gymnasium_shape() {
     let w = world(SimConfig { obs_mode: ObsMode::StateDebug, ..SimConfig::default() });
     let mut env = PedestrianEnv::new(w.clone(), backend()).unwrap();
-    let (obs, info) = env.reset(w.scene.first_task(), 0).unwrap();
+    let (obs, info) = env.reset(Pose::from_degrees(12.0, 7.0, 0.0), 0).unwrap();
     let Observation::State(o) = obs else { panic!("state mode") };
-    // Goal centre (20, 7) is 8 m straight ahead of the first task (12, 7) facing east.
+    // Goal centre (20, 7) is 8 m straight ahead of (12, 7) facing east.
     assert!((o[0] - 8.0 / 20.0).abs() < 1e-5 && o[1].abs() < 1e-5, "{o:?}");
     assert_eq!(info.region, RegionKind::GoalSidewalk);
     let out = env.step([1.0, 0.0, 0.0]).unwrap();
