@@ -3,7 +3,7 @@
 # of this CPU: PyTorch's reference, then pednav's dsac_update bench once per path
 # (PEDNAV_ISA=avx2, avx512, … as the CPU allows), then PyTorch again; the ratios use
 # PyTorch's faster run. These machines are shared and noisy: only figures measured
-# together count (DESIGN §7).
+# together count (docs/design.md §8).
 #
 # Usage: deploy/bench_learner.sh [OUT_DIR] [-- extra dsac_update flags, e.g. --quick --only c,d]
 # Writes OUT_DIR/pytorch-{1,2}.txt, OUT_DIR/<isa>.json and OUT_DIR/<isa>.txt

@@ -100,7 +100,7 @@ rm -rf "$stub_src"
 
 bins=(pednav-run pednav-learner pednav-device-check pednav-actor pednav-curriculum pednav-eval)
 cargo build --release --locked --target-dir "$target" "${features[@]}" \
-    -p pednav-launcher -p pednav-learner -p pednav-actor -p pednav-curriculum -p pednav-experiments
+    -p pednav-run -p pednav-learner -p pednav-actor -p pednav-curriculum -p pednav-experiments
 if [ "$mode" = bins ]; then
     echo "build_cuda.sh: binaries in $target/release ($(( $(date +%s) - start )) s)" >&2
     exit 0

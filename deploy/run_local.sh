@@ -53,7 +53,7 @@ if [[ "${PEDNAV_SKIP_BUILD:-0}" != 1 ]]; then
     else
         echo "pednav: building (release; the first build takes several minutes)…" >&2
         CARGO_BUILD_JOBS="${CARGO_BUILD_JOBS:-$(nproc)}" cargo build --release --locked \
-            -p pednav-launcher -p pednav-actor -p pednav-learner -p pednav-curriculum >&2
+            -p pednav-run -p pednav-actor -p pednav-learner -p pednav-curriculum >&2
     fi
 fi
 [[ $cuda -eq 1 ]] && default_bins="${PEDNAV_CUDA_TARGET:-target-cuda}/release"

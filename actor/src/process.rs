@@ -18,8 +18,10 @@ use pednav_nets::DsacNets;
 use pednav_policy::{ActingPolicy, Sampling};
 use pednav_runtime::channels::{EpisodeReporter, Observation, StepWriter, TaskRequester};
 use pednav_runtime::ipc::HeartbeatPublisher;
-use pednav_runtime::messages::{EpisodeHeader, EpisodePoint, Heartbeat, StepHeader, process_kind, step_flags};
+use pednav_runtime::messages::{EpisodeHeader, EpisodePoint, Faults, Heartbeat, StepHeader, process_kind, step_flags};
+use pednav_runtime::stats::{self, ActorStats};
 use pednav_runtime::weights::WeightsClient;
+use pednav_runtime::write_health::WriteHealth;
 use pednav_runtime::{ActorPolicy, Ipc, Metrics, RunConfig, RunDir, StopFlag, run_prefix};
 use pednav_sim::policy::RandomPolicy;
 use pednav_sim::{BackendChoice, DiscountedReturn, ObsMode, Policy, Pose, STATE_OBS_DIM, SimWorld, VecEnv};
@@ -89,7 +91,6 @@ pub struct ActorProcess {
     stop: StopFlag,
     actor: u32,
     incarnation: u32,
-    name: String,
     envs: VecEnv,
     pixels: bool,
     /// Whether records carry the state vector (the observation in state mode, the
@@ -103,6 +104,8 @@ pub struct ActorProcess {
     weights: WeightsClient,
     heartbeat: HeartbeatPublisher,
     metrics: Metrics,
+    /// Writes that failed (metrics, stats) and are retried.
+    health: WriteHealth,
     /// The learned policy; it receives every newer version of the weights.
     learned: ActingPolicy,
     /// The random walk, when it acts instead (`runtime.policy = "random"`).
@@ -158,7 +161,6 @@ impl ActorProcess {
             send_state: cfg.sim.obs_mode != ObsMode::Pixels || cfg.dsac.state_aux_weight > 0.0,
             actor: opts.actor,
             incarnation,
-            name,
             envs,
             _ipc: ipc,
             steps,
@@ -167,6 +169,7 @@ impl ActorProcess {
             weights,
             heartbeat,
             metrics,
+            health: WriteHealth::new(Duration::from_secs_f64(cfg.runtime.metrics_every_secs.max(1.0))),
             learned,
             random,
             versions_used: BTreeSet::new(),
@@ -400,32 +403,42 @@ impl ActorProcess {
             version,
             recent_return: recent.unwrap_or(f32::NAN),
             rate: rate as f32,
+            faults: self.health.faults(),
             ..Heartbeat::default()
         });
-        self.dir.write_stats(&format!("{}.live", self.name), &self.stats_json("running"))?;
+        match self.dir.write_stats(&stats::actor_live(self.actor), &self.stats(stats::RUNNING)) {
+            Ok(()) => self.health.succeeded("stats"),
+            Err(e) => self.health.failed(
+                "stats",
+                Faults::METRICS,
+                e.is_disk_full(),
+                &e.to_string(),
+                "retried at the next interval",
+            ),
+        }
         Ok(())
     }
 
-    fn stats_json(&self, status: &str) -> serde_json::Value {
+    fn stats(&self, status: &str) -> ActorStats {
         let (c, versions) = (&self.counters, &self.versions_used);
-        serde_json::json!({
-            "actor": self.actor,
-            "incarnation": self.incarnation,
-            "pid": std::process::id(),
-            "status": status,
-            "steps_sent": c.steps,
-            "checksum": c.checksum,
-            "episodes": c.episodes,
-            "policy_versions_used": versions.len(),
-            "first_policy_version": versions.first(),
-            "last_policy_version": versions.last(),
-            "tasks_received": c.tasks,
-            "last_task_id": c.last_task_id,
-        })
+        ActorStats {
+            actor: self.actor,
+            incarnation: self.incarnation,
+            pid: std::process::id(),
+            status: status.to_string(),
+            steps_sent: c.steps,
+            checksum: c.checksum,
+            episodes: c.episodes,
+            policy_versions_used: versions.len() as u64,
+            first_policy_version: versions.first().copied(),
+            last_policy_version: versions.last().copied(),
+            tasks_received: c.tasks,
+            last_task_id: c.last_task_id,
+        }
     }
 
     fn finish(&self, status: &str) -> Result<()> {
-        self.dir.write_stats(&format!("{}.{}", self.name, self.incarnation), &self.stats_json(status))?;
+        self.dir.write_stats(&stats::actor_final(self.actor, self.incarnation), &self.stats(status))?;
         tracing::info!(steps = self.counters.steps, episodes = self.counters.episodes, status, "actor finished");
         Ok(())
     }

@@ -29,6 +29,23 @@ pub enum CurriculumError {
         /// The task's features.
         features: [f32; 3],
     },
+    /// A save of the service's state failed at one of its steps; both generations on
+    /// disk are as they were (the service keeps serving and saves again later).
+    #[error("curriculum state {path}: {}", .halt.describe())]
+    StateSave {
+        /// The state file.
+        path: std::path::PathBuf,
+        /// The step that failed and its error.
+        halt: pednav_runtime::generations::Halt,
+    },
+}
+
+impl CurriculumError {
+    /// Did a state save fail because the disk (or the quota) is full?
+    pub fn is_disk_full(&self) -> bool {
+        matches!(self, CurriculumError::StateSave { halt: pednav_runtime::generations::Halt::Failed { error, .. }, .. }
+            if pednav_runtime::generations::is_disk_full(error))
+    }
 }
 
 /// Result alias of the curriculum library.

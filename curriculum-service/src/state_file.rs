@@ -2,16 +2,19 @@
 //! CRC-32 line, written beside its path and renamed into place, keeping the state it
 //! replaces as the previous generation (`<name>.prev.json`).
 //!
-//! A save is a short list of filesystem steps (write and sync the new state beside
-//! the newest, newest → previous, new → newest, sync the folder); a kill after any of
-//! them leaves a state that loads at the path or in the previous generation
-//! ([`ServiceState::load_or_previous`]). The crash tests stop a save after each step
+//! A save is the two-generation save of [`pednav_runtime::generations`] (write and
+//! sync the new state beside the newest, newest → previous, new → newest, sync the
+//! folder); a kill after any of its steps leaves a state that loads at the path or in
+//! the previous generation ([`ServiceState::load_or_previous`]), and a failed step (a
+//! full disk) leaves both as they were. The crash tests stop a save after each step
 //! ([`ServiceState::save_interrupted`]).
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
 use serde::{Deserialize, Serialize};
+
+use pednav_runtime::generations::{Generations, Halt, SaveFault, SaveReport, SaveSteps, write_synced};
 
 use crate::curriculum::CurriculumState;
 use crate::error::{CurriculumError, Result};
@@ -32,44 +35,6 @@ pub struct ServiceState {
 
 /// What precedes the checksum of a saved state (after its JSON).
 const CRC_TAG: &[u8] = b"\ncrc32 ";
-
-/// What [`ServiceState::save_interrupted`] did before it stopped.
-#[doc(hidden)]
-#[derive(Debug, Clone)]
-pub struct InterruptedSave {
-    /// The filesystem steps done, in order.
-    pub steps: Vec<String>,
-    /// Whether the save ran to its end within the steps allowed.
-    pub finished: bool,
-}
-
-/// Why a save stopped early: at the stop point of a simulated kill, or a failed step.
-enum Halt {
-    Stopped,
-    Failed(CurriculumError),
-}
-
-/// The filesystem steps of a save, done in order; with a stop point, the ones after
-/// it are not done (a kill there).
-struct Steps {
-    stop_after: Option<usize>,
-    done: Vec<String>,
-}
-
-impl Steps {
-    /// Do `step` (described by `what`) unless the stop point is reached.
-    fn run(&mut self, what: impl FnOnce() -> String, step: impl FnOnce() -> std::io::Result<()>) -> Result<(), Halt> {
-        if self.stop_after.is_some_and(|n| self.done.len() >= n) {
-            return Err(Halt::Stopped);
-        }
-        let what = what();
-        step().map_err(|e| Halt::Failed(CurriculumError::Report(format!("{what}: {e}"))))?;
-        if self.stop_after.is_some() {
-            self.done.push(what);
-        }
-        Ok(())
-    }
-}
 
 impl ServiceState {
     /// Read a saved state, verifying its checksum line (a state written before states
@@ -109,71 +74,47 @@ impl ServiceState {
 
     /// Write it with a CRC-32 line, atomically; the state that was at `path` becomes
     /// the previous generation ([`ServiceState::previous_generation`]) unless it is
-    /// damaged (then it is replaced and the previous generation stays). An
-    /// interruption at any point leaves a loadable state at `path` or in the previous
-    /// generation.
+    /// damaged (then it is replaced and the previous generation stays) — the
+    /// two-generation save of [`pednav_runtime::generations`]. A kill at any point
+    /// leaves a loadable state at `path` or in the previous generation; a failed write
+    /// (a full disk) returns its error and leaves both as they were.
     pub fn save(&self, path: &Path) -> Result<()> {
-        match self.save_steps(path, &mut Steps { stop_after: None, done: Vec::new() }) {
-            Ok(()) => Ok(()),
-            Err(Halt::Failed(e)) => Err(e),
-            Err(Halt::Stopped) => unreachable!("a save without a stop point runs to the end"),
-        }
+        self.save_with_fault(path, SaveFault::None).map(|_| ())
     }
 
     /// Fault injection for the crash tests: [`ServiceState::save`] stopped after its
     /// first `stop_after` filesystem steps, leaving the files as a kill there would.
     #[doc(hidden)]
-    pub fn save_interrupted(&self, path: &Path, stop_after: usize) -> Result<InterruptedSave> {
-        let mut steps = Steps { stop_after: Some(stop_after), done: Vec::new() };
-        let finished = match self.save_steps(path, &mut steps) {
-            Ok(()) => true,
-            Err(Halt::Stopped) => false,
-            Err(Halt::Failed(e)) => return Err(e),
-        };
-        Ok(InterruptedSave { steps: steps.done, finished })
+    pub fn save_interrupted(&self, path: &Path, stop_after: usize) -> Result<SaveReport> {
+        self.save_with_fault(path, SaveFault::KillAfter(stop_after))
     }
 
-    fn save_steps(&self, path: &Path, steps: &mut Steps) -> Result<(), Halt> {
-        use std::io::Write;
-        let tmp = path.with_extension("json.tmp");
+    /// [`ServiceState::save`] with a fault put in (tests): a simulated kill ends it
+    /// early (`finished: false`), an injected I/O error fails it as a real one would.
+    #[doc(hidden)]
+    pub fn save_with_fault(&self, path: &Path, fault: SaveFault) -> Result<SaveReport> {
         let mut bytes = serde_json::to_vec(self).expect("state serialises");
         let crc = crc32fast::hash(&bytes);
         bytes.extend_from_slice(CRC_TAG);
         bytes.extend_from_slice(format!("{crc:08x}\n").as_bytes());
-        steps.run(
-            || format!("write and sync {}", tmp.display()),
-            || {
-                let mut f = std::fs::File::create(&tmp)?;
-                f.write_all(&bytes)?;
-                f.sync_all()
-            },
-        )?;
-        if path.exists() {
-            match Self::verify(path) {
-                Ok(()) => {
-                    let prev = Self::previous_generation(path);
-                    steps.run(
-                        || format!("rename {} to {}", path.display(), prev.display()),
-                        || std::fs::rename(path, &prev),
-                    )?;
-                }
-                Err(damaged) => tracing::warn!(
-                    damaged = %damaged,
-                    kept = %Self::previous_generation(path).display(),
-                    "the newest curriculum state is damaged: replacing it, the previous generation stays"
-                ),
+        let mut steps = SaveSteps::new(fault);
+        let finished = match Generations::file(path).save(
+            &mut steps,
+            |tmp, steps| steps.run(|| format!("write and sync {}", tmp.display()), || write_synced(tmp, &bytes)),
+            |newest| Self::verify(newest).map_err(|e| e.to_string()),
+        ) {
+            Ok(()) => true,
+            Err(Halt::Killed) => false,
+            Err(halt @ Halt::Failed { .. }) => {
+                return Err(CurriculumError::StateSave { path: path.to_path_buf(), halt });
             }
-        }
-        steps.run(|| format!("rename {} to {}", tmp.display(), path.display()), || std::fs::rename(&tmp, path))?;
-        if let Some(parent) = path.parent().filter(|p| !p.as_os_str().is_empty()) {
-            steps.run(|| format!("sync {}", parent.display()), || std::fs::File::open(parent)?.sync_all())?;
-        }
-        Ok(())
+        };
+        Ok(SaveReport { steps: steps.done().to_vec(), finished })
     }
 
     /// Where the state before the newest one at `path` is kept (`<name>.prev.json`).
     pub fn previous_generation(path: &Path) -> PathBuf {
-        path.with_extension("prev.json")
+        Generations::file(path).previous().to_path_buf()
     }
 
     /// Whether `path` or its previous generation holds a state.

@@ -2,9 +2,7 @@
 //! damage, the previous generation kept by every save, the fallback to it, and a
 //! save interrupted after any of its steps (issue 18).
 
-#[path = "../../tests/support/warnings.rs"]
-mod warnings;
-use warnings::logged_warnings;
+use pednav_tests::warnings::{self, logged_warnings};
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};

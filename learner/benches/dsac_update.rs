@@ -17,7 +17,7 @@
 //!
 //! Compare with the PyTorch reference of the same update in the same minute
 //! (`../shared/bench/torch_ref/bench.sh`): these machines are shared and differ, so
-//! only ratios measured together count (DESIGN §7). `--pytorch FILE[,FILE…]` reads
+//! only ratios measured together count (docs/design.md §8). `--pytorch FILE[,FILE…]` reads
 //! that script's stdout (the fastest figure per config over the files) and the ratio
 //! columns and the JSON (`"pytorch"`, `"ratio"`) use it; without it the `PyTorch ms`
 //! column is the reference measured once on a 2-vCPU AVX-512 Xeon, for orientation

@@ -5,9 +5,11 @@
 //!
 //! Invariants: a checkpoint directory is written beside the target as
 //! `<dir>.tmp`, synced and renamed into place, keeping the checkpoint it replaces as
-//! the previous generation (`<dir>.prev`), so a crash at any point of a save leaves a
-//! loadable checkpoint in one of the two (tests stop a save after each of its steps,
-//! [`save_checkpoint_interrupted`]); loading verifies the format, the architecture,
+//! the previous generation (`<dir>.prev`) — the two-generation save of
+//! [`pednav_runtime::generations`] — so a crash or a failed write (a full disk) at
+//! any point of a save leaves a loadable checkpoint in one of the two (tests stop a
+//! save after each of its steps, [`save_checkpoint_interrupted`], and fail each of
+//! them, [`save_checkpoint_with_fault`]); loading verifies the format, the architecture,
 //! every checksum and every tensor name and shape *before* changing anything, so an
 //! incompatible or corrupted checkpoint returns an error and leaves the learner as it
 //! was; a save followed by a load restores weights, moments, counters and RNG
@@ -25,7 +27,9 @@ use pednav_nets::{DsacNets, NetsConfig, ParamStore};
 use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
 
-use crate::dsac::Dsac;
+use pednav_runtime::generations::{Generations, Halt, SaveFault, SaveReport, SaveSteps, sync_path, write_synced};
+
+use crate::dsac::{Dsac, LOG_ALPHA};
 use crate::error::{LearnerError, Result};
 use crate::rate::RateLimiter;
 
@@ -34,8 +38,6 @@ use crate::rate::RateLimiter;
 pub const FORMAT: u32 = 2;
 const STATE_FILE: &str = "state.json";
 const OPTIM_FILE: &str = "optimizer.safetensors";
-/// Name of the temperature's store (and, with `.safetensors`, its file).
-pub(crate) const LOG_ALPHA: &str = "log_alpha";
 
 /// The state file of a checkpoint.
 #[derive(Debug, Clone, Serialize, Deserialize)]
@@ -82,49 +84,37 @@ fn crc_of(path: &Path) -> Result<u32> {
     Ok(crc32fast::hash(&bytes))
 }
 
-/// Where the generation before the newest checkpoint in `dir` is kept: `<dir>.prev`.
-pub fn previous_generation(dir: &Path) -> PathBuf {
-    PathBuf::from(format!("{}.prev", dir.display()))
+/// The generations of the checkpoint in `dir`: `dir`, `<dir>.prev` and, while a save
+/// runs, `<dir>.tmp` (the rule they follow: [`pednav_runtime::generations`]).
+fn generations(dir: &Path) -> Generations {
+    Generations::folder(dir, STATE_FILE)
 }
 
-/// Where a checkpoint is written before it is moved into place: `<dir>.tmp`.
-fn partial_generation(dir: &Path) -> PathBuf {
-    PathBuf::from(format!("{}.tmp", dir.display()))
+/// Where the generation before the newest checkpoint in `dir` is kept: `<dir>.prev`.
+pub fn previous_generation(dir: &Path) -> PathBuf {
+    generations(dir).previous().to_path_buf()
 }
 
 /// Write a checkpoint of `dsac` (plus optional limiter counters and free-form
 /// `extra`) to `dir`; the checkpoint that was there becomes the previous generation
-/// ([`previous_generation`]), and the one before that is dropped.
-///
-/// Order: the new one is written completely beside the others (`<dir>.tmp`, every
-/// file synced), then the previous generation is dropped file by file, the newest
-/// becomes the previous, the new one the newest. An interruption at any point leaves
-/// a loadable checkpoint in `dir` or in the previous generation
-/// ([`load_checkpoint_or_previous`] finds it), and the next save clears what it left.
-/// A newest checkpoint that fails its checksums is not kept as the previous
-/// generation: it is replaced and the previous generation stays, so a resume that
-/// fell back to the previous one keeps it until a good one replaces it.
+/// ([`previous_generation`]), and the one before that is dropped — the two-generation
+/// save of [`pednav_runtime::generations`]: the new one is written completely beside
+/// the others (`<dir>.tmp`, every file synced), then the previous generation is
+/// dropped file by file, the newest becomes the previous, the new one the newest. A
+/// kill at any point leaves a loadable checkpoint in `dir` or in the previous
+/// generation ([`load_checkpoint_or_previous`] finds it); a failed step (a full disk)
+/// returns its error naming the file and leaves both generations as they were, so
+/// the caller can keep training and try again later. A newest checkpoint that fails
+/// its checksums is not kept as the previous generation: it is replaced and the
+/// previous generation stays, so a resume that fell back to the previous one keeps
+/// it until a good one replaces it.
 pub fn save_checkpoint(
     dir: &Path,
     dsac: &mut Dsac,
     limiter: Option<RateLimiter>,
     extra: serde_json::Value,
 ) -> Result<()> {
-    match save_steps(dir, dsac, limiter, extra, &mut Steps::new(None)) {
-        Ok(()) => Ok(()),
-        Err(Halt::Failed(e)) => Err(e),
-        Err(Halt::Stopped) => unreachable!("a save without a stop point runs to the end"),
-    }
-}
-
-/// What [`save_checkpoint_interrupted`] did before it stopped.
-#[doc(hidden)]
-#[derive(Debug, Clone)]
-pub struct InterruptedSave {
-    /// The filesystem steps done, in order.
-    pub steps: Vec<String>,
-    /// Whether the save ran to its end within the steps allowed.
-    pub finished: bool,
+    save_checkpoint_with_fault(dir, dsac, limiter, extra, SaveFault::None).map(|_| ())
 }
 
 /// Fault injection for the crash tests: [`save_checkpoint`] stopped after its first
@@ -137,126 +127,65 @@ pub fn save_checkpoint_interrupted(
     limiter: Option<RateLimiter>,
     extra: serde_json::Value,
     stop_after: usize,
-) -> Result<InterruptedSave> {
-    let mut steps = Steps::new(Some(stop_after));
-    let finished = match save_steps(dir, dsac, limiter, extra, &mut steps) {
-        Ok(()) => true,
-        Err(Halt::Stopped) => false,
-        Err(Halt::Failed(e)) => return Err(e),
-    };
-    Ok(InterruptedSave { steps: steps.done, finished })
+) -> Result<SaveReport> {
+    save_checkpoint_with_fault(dir, dsac, limiter, extra, SaveFault::KillAfter(stop_after))
 }
 
-/// Why a save stopped early.
-enum Halt {
-    /// At the stop point of a simulated kill.
-    Stopped,
-    /// A step failed.
-    Failed(LearnerError),
-}
-
-impl From<LearnerError> for Halt {
-    fn from(e: LearnerError) -> Self {
-        Halt::Failed(e)
-    }
-}
-
-/// The filesystem steps of a save, done in order; with a stop point, the ones after
-/// it are not done (a kill there).
-struct Steps {
-    stop_after: Option<usize>,
-    done: Vec<String>,
-}
-
-impl Steps {
-    fn new(stop_after: Option<usize>) -> Steps {
-        Steps { stop_after, done: Vec::new() }
-    }
-
-    /// Do `step` (described by `what`) unless the stop point is reached.
-    fn run<T>(&mut self, what: impl FnOnce() -> String, step: impl FnOnce() -> Result<T>) -> Result<T, Halt> {
-        if self.stop_after.is_some_and(|n| self.done.len() >= n) {
-            return Err(Halt::Stopped);
-        }
-        let out = step()?;
-        if self.stop_after.is_some() {
-            self.done.push(what());
-        }
-        Ok(out)
-    }
-}
-
-/// Flush `path` (a file, or a directory's entries) to the disk.
-fn sync_path(path: &Path) -> Result<()> {
-    fs::File::open(path).and_then(|f| f.sync_all()).map_err(|e| ck_err(path, format!("cannot sync: {e}")))
-}
-
-/// Write `bytes` to `path` and flush it to the disk.
-fn write_synced(path: &Path, bytes: &[u8]) -> Result<()> {
-    use std::io::Write;
-    let mut f = fs::File::create(path).map_err(|e| ck_err(path, format!("cannot create: {e}")))?;
-    f.write_all(bytes).and_then(|()| f.sync_all()).map_err(|e| ck_err(path, format!("cannot write: {e}")))
-}
-
-/// Remove the checkpoint directory `dir` one file at a time, the state file first
-/// (so a part-removed one is not taken for a checkpoint), then the directory.
-fn remove_generation(dir: &Path, steps: &mut Steps) -> Result<(), Halt> {
-    let mut entries: Vec<PathBuf> = fs::read_dir(dir)
-        .map_err(|e| ck_err(dir, format!("cannot list: {e}")))?
-        .map(|e| e.map(|e| e.path()))
-        .collect::<std::io::Result<_>>()
-        .map_err(|e| ck_err(dir, format!("cannot list: {e}")))?;
-    entries.sort_by_key(|p| (p.file_name() != Some(std::ffi::OsStr::new(STATE_FILE)), p.clone()));
-    for path in &entries {
-        steps.run(
-            || format!("remove {}", path.display()),
-            || {
-                if path.is_dir() { fs::remove_dir_all(path) } else { fs::remove_file(path) }
-                    .map_err(|e| ck_err(path, format!("cannot remove: {e}")))
-            },
-        )?;
-    }
-    steps.run(
-        || format!("remove {}", dir.display()),
-        || fs::remove_dir(dir).map_err(|e| ck_err(dir, format!("cannot remove: {e}"))),
-    )
-}
-
-fn save_steps(
+/// [`save_checkpoint`] with a fault put in (tests): a simulated kill ends it early
+/// (`finished: false`), an injected I/O error fails it as a real one would.
+#[doc(hidden)]
+pub fn save_checkpoint_with_fault(
     dir: &Path,
     dsac: &mut Dsac,
     limiter: Option<RateLimiter>,
     extra: serde_json::Value,
-    steps: &mut Steps,
-) -> Result<(), Halt> {
-    let tmp = partial_generation(dir);
-    if tmp.exists() {
-        steps.run(
-            || format!("remove the stale {}", tmp.display()),
-            || {
-                fs::remove_dir_all(&tmp)
-                    .map_err(|e| ck_err(&tmp, format!("cannot remove a stale partial checkpoint: {e}")))
-            },
-        )?;
-    }
-    steps.run(
-        || format!("create {}", tmp.display()),
-        || fs::create_dir_all(&tmp).map_err(|e| ck_err(&tmp, format!("cannot create: {e}"))),
-    )?;
+    fault: SaveFault,
+) -> Result<SaveReport> {
+    let mut steps = SaveSteps::new(fault);
+    let finished = match generations(dir).save(
+        &mut steps,
+        |tmp, steps| write_generation(tmp, dsac, limiter, extra, steps),
+        |newest| verify_files(newest).map_err(|e| e.to_string()),
+    ) {
+        Ok(()) => true,
+        Err(Halt::Killed) => false,
+        Err(halt @ Halt::Failed { .. }) => return Err(LearnerError::CheckpointSave { dir: dir.to_path_buf(), halt }),
+    };
+    Ok(SaveReport { steps: steps.done().to_vec(), finished })
+}
+
+/// The bytes of a safetensors file of `tensors`.
+fn safetensors_bytes(tensors: &HashMap<String, Tensor>, path: &Path) -> std::io::Result<Vec<u8>> {
+    safetensors::tensor::serialize(tensors.iter().map(|(k, v)| (k.as_str(), v)), None)
+        .map_err(|e| std::io::Error::other(format!("{}: cannot serialise: {e}", path.display())))
+}
+
+/// Write every file of a checkpoint of `dsac` into the new folder `tmp`, each synced,
+/// the state file (with every other file's CRC-32) last, then sync the folder.
+fn write_generation(
+    tmp: &Path,
+    dsac: &mut Dsac,
+    limiter: Option<RateLimiter>,
+    extra: serde_json::Value,
+    steps: &mut SaveSteps,
+) -> std::result::Result<(), Halt> {
+    steps.run(|| format!("create {}", tmp.display()), || fs::create_dir_all(tmp))?;
     let mut checksums = BTreeMap::new();
-    let stores = checkpoint_stores(dsac);
-    for store in &stores {
-        let file = format!("{}.safetensors", store.name());
+    let mut write_tensors = |file: String, tensors: &HashMap<String, Tensor>, steps: &mut SaveSteps| {
         let path = tmp.join(&file);
         let crc = steps.run(
             || format!("write and sync {}", path.display()),
             || {
-                candle_core::safetensors::save(&store.tensors(), &path).map_err(|e| ck_err(&path, e.to_string()))?;
-                sync_path(&path)?;
-                crc_of(&path)
+                let bytes = safetensors_bytes(tensors, &path)?;
+                write_synced(&path, &bytes)?;
+                Ok(crc32fast::hash(&bytes))
             },
         )?;
         checksums.insert(file, crc);
+        Ok::<(), Halt>(())
+    };
+    for store in &checkpoint_stores(dsac) {
+        write_tensors(format!("{}.safetensors", store.name()), &store.tensors(), steps)?;
     }
     let mut moments: HashMap<String, Tensor> = HashMap::new();
     let mut optimizer_steps = BTreeMap::new();
@@ -266,16 +195,7 @@ fn save_steps(
             moments.insert(format!("{name}/{k}"), t);
         }
     }
-    let path = tmp.join(OPTIM_FILE);
-    let crc = steps.run(
-        || format!("write and sync {}", path.display()),
-        || {
-            candle_core::safetensors::save(&moments, &path).map_err(|e| ck_err(&path, e.to_string()))?;
-            sync_path(&path)?;
-            crc_of(&path)
-        },
-    )?;
-    checksums.insert(OPTIM_FILE.to_string(), crc);
+    write_tensors(OPTIM_FILE.to_string(), &moments, steps)?;
     let meta = CheckpointMeta {
         format: FORMAT,
         nets: dsac.nets.cfg.clone(),
@@ -290,44 +210,14 @@ fn save_steps(
         checksums,
     };
     let path = tmp.join(STATE_FILE);
-    let text = state_file_text(&meta).map_err(|e| ck_err(&path, e.to_string()))?;
-    steps.run(|| format!("write and sync {}", path.display()), || write_synced(&path, text.as_bytes()))?;
-    steps.run(|| format!("sync {}", tmp.display()), || sync_path(&tmp))?;
-    // Rotate: drop the previous generation, newest → previous, new → newest. A newest
-    // that is damaged is dropped instead, and the previous generation stays.
-    let prev = previous_generation(dir);
-    if dir.exists() {
-        match verify_files(dir) {
-            Ok(()) => {
-                if prev.exists() {
-                    remove_generation(&prev, steps)?;
-                }
-                steps.run(
-                    || format!("rename {} to {}", dir.display(), prev.display()),
-                    || {
-                        fs::rename(dir, &prev)
-                            .map_err(|e| ck_err(dir, format!("cannot keep the previous checkpoint: {e}")))
-                    },
-                )?;
-            }
-            Err(damaged) => {
-                tracing::warn!(
-                    damaged = %damaged,
-                    kept = %prev.display(),
-                    "the newest checkpoint is damaged: replacing it, the previous generation stays"
-                );
-                remove_generation(dir, steps)?;
-            }
-        }
-    }
     steps.run(
-        || format!("rename {} to {}", tmp.display(), dir.display()),
-        || fs::rename(&tmp, dir).map_err(|e| ck_err(dir, format!("cannot move the new checkpoint into place: {e}"))),
+        || format!("write and sync {}", path.display()),
+        || {
+            let text = state_file_text(&meta).map_err(std::io::Error::other)?;
+            write_synced(&path, text.as_bytes())
+        },
     )?;
-    if let Some(parent) = dir.parent().filter(|p| !p.as_os_str().is_empty()) {
-        steps.run(|| format!("sync {}", parent.display()), || sync_path(parent))?;
-    }
-    Ok(())
+    steps.run(|| format!("sync {}", tmp.display()), || sync_path(tmp))
 }
 
 /// Check the checkpoint in `dir` without loading it: its state file (and that

@@ -30,7 +30,7 @@
 use candle_core::{D, DType, Device, Tensor};
 use pednav_nets::heads::{features_of, standard_normal};
 use pednav_nets::{
-    AdamW, AdamWConfig, DsacNets, NetsConfig, Obs, ParamStore, QuantileGrid, StepOutcome, TransitionFeatures,
+    AdamW, AdamWConfig, DsacNets, NetsConfig, Obs, OptimStep, ParamStore, QuantileGrid, TransitionFeatures,
 };
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
@@ -78,6 +78,9 @@ pub fn smaller_mean(a: &Tensor, b: &Tensor, widths: &Tensor) -> Result<Tensor> {
     let take_a = mean_a.le(&mean_b)?.broadcast_as(a.shape())?;
     Ok(take_a.where_cond(a, b)?)
 }
+
+/// Name of the temperature's store (and, with `.safetensors`, its checkpoint file).
+pub(crate) const LOG_ALPHA: &str = "log_alpha";
 
 /// Mean of η·x over the batch.
 fn weighted_mean(x: &Tensor, eta: &Tensor) -> Result<Tensor> {
@@ -146,8 +149,8 @@ impl Dsac {
         if cfg.state_aux_weight > 0.0 {
             nets = nets.with_state_head(nets_cfg.state_dim, seed)?;
         }
-        let mut log_alpha = ParamStore::new(crate::checkpoint::LOG_ALPHA, device);
-        log_alpha.insert(crate::checkpoint::LOG_ALPHA, Tensor::new(&[cfg.initial_alpha.ln() as f32], device)?)?;
+        let mut log_alpha = ParamStore::new(LOG_ALPHA, device);
+        log_alpha.insert(LOG_ALPHA, Tensor::new(&[cfg.initial_alpha.ln() as f32], device)?)?;
         let opt = |store: &ParamStore, lr: f64| {
             AdamW::new(store, AdamWConfig { max_grad_norm: cfg.max_grad_norm, ..AdamWConfig::with_lr(lr) })
         };
@@ -373,7 +376,7 @@ impl Dsac {
         }
         for ((opt, grads), norm) in steps.into_iter().zip(norms) {
             let outcome = opt.step_with_norm(grads, norm)?;
-            debug_assert!(matches!(outcome, StepOutcome::Applied { .. }), "norms were checked finite");
+            debug_assert!(matches!(outcome, OptimStep::Applied { .. }), "norms were checked finite");
         }
         self.nets.target.store.soft_update(&self.nets.quantile.store, c.soft_update)?;
         if let Some(twin) = &self.nets.twin {

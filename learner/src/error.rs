@@ -22,6 +22,23 @@ pub enum LearnerError {
         /// What went wrong and how to fix it.
         message: String,
     },
+    /// A checkpoint save failed at one of its steps; both generations on disk are as
+    /// they were before it (the learner keeps training and saves again later).
+    #[error("checkpoint {dir}: {}", .halt.describe())]
+    CheckpointSave {
+        /// The checkpoint directory.
+        dir: PathBuf,
+        /// The step that failed and its error.
+        halt: pednav_runtime::generations::Halt,
+    },
+}
+
+impl LearnerError {
+    /// Did a checkpoint save fail because the disk (or the quota) is full?
+    pub fn is_disk_full(&self) -> bool {
+        matches!(self, LearnerError::CheckpointSave { halt: pednav_runtime::generations::Halt::Failed { error, .. }, .. }
+            if pednav_runtime::generations::is_disk_full(error))
+    }
 }
 
 impl From<candle_core::Error> for LearnerError {

@@ -2,6 +2,8 @@
 //! paper's Algorithm 2, the replay-ratio limiter, checkpoints, and the comparison of
 //! one update on two devices.
 
+#![warn(missing_docs)]
+
 pub mod checkpoint;
 pub mod device_check;
 pub mod dsac;

@@ -5,9 +5,7 @@
 //! those of one save, never a mixture — names the damaged file, and the next save works.
 
 mod common;
-#[path = "../../tests/support/warnings.rs"]
-mod warnings;
-use warnings::logged_warnings;
+use pednav_tests::warnings::{self, logged_warnings};
 
 use common::{all_values, small};
 

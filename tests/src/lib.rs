@@ -1,8 +1,13 @@
-//! Helpers for pednav's end-to-end tests: they drive the real binaries as a user
-//! would, so the tests in `tests/tests/` check what the README promises.
+//! Helpers for pednav's tests: the end-to-end tests in `tests/tests/` drive the real
+//! binaries as a user would ([`run`]), so they check what the README promises; the
+//! fault tests of the learner and the curriculum service capture the warnings they
+//! provoke ([`warnings`]).
 //!
 //! Invariant: [`binary`] returns an executable of the running test's profile that
 //! is newer than every source file of its package.
+
+pub mod run;
+pub mod warnings;
 
 use std::path::{Path, PathBuf};
 use std::process::Command;

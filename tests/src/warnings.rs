@@ -1,5 +1,5 @@
 //! The `tracing` warnings a test provokes, captured per thread — shared by the fault
-//! tests of several crates (each includes this file with `#[path]`).
+//! tests of several crates (this crate is their dev-dependency).
 //!
 //! One global subscriber, installed before the test binary's first event, hands every
 //! warning to the calling thread's sink while [`logged_warnings`] runs. A scoped

@@ -51,7 +51,7 @@ fn evaluating_the_oracle_reproduces_its_planned_returns() {
         assert!((mean - oracle).abs() < 1e-3, "point {}: evaluated {mean} vs planned {oracle}", r[0]);
         assert_eq!(success, 1.0, "the oracle reaches the goal from point {}", r[0]);
     }
-    // Points 0 and 7 bracket the interior difficulty (DESIGN: ≈ +4 and ≈ −23 at their best yaw).
+    // Points 0 and 7 bracket the interior difficulty (docs/design.md §3: ≈ +4 and ≈ −23 at their best yaw).
     let mean_of = |p: &str| points.iter().find(|r| r[0] == p).unwrap()[2].parse::<f64>().unwrap();
     assert!(mean_of("0") > mean_of("7") + 15.0);
     assert_eq!(csv_rows(&out.join("results.csv")).len(), 112);
@@ -66,7 +66,7 @@ fn a_tiny_run_can_be_evaluated_and_plotted() {
     std::fs::write(&config, format!("{smoke}max_updates = 30\n")).unwrap();
     let run = root.join("run");
     let bins = [
-        ("pednav-launcher", "deploy/launcher", "pednav-run"),
+        ("pednav-run", "deploy/pednav-run", "pednav-run"),
         ("pednav-actor", "actor", "pednav-actor"),
         ("pednav-learner", "learner", "pednav-learner"),
         ("pednav-curriculum", "curriculum-service", "pednav-curriculum"),

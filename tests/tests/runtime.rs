@@ -14,95 +14,11 @@
 //! budget. Only watchdogs — no timing assertions.
 
 use std::path::{Path, PathBuf};
-use std::process::{Child, Command, Stdio};
-use std::time::{Duration, Instant};
+use std::process::{Child, Command};
+use std::time::Duration;
 
-use pednav_tests::{binary, scratch_dir, workspace_root};
-use serde_json::Value;
-
-const WATCHDOG: Duration = Duration::from_secs(600);
-
-fn bin_dir() -> PathBuf {
-    let bins = [
-        ("pednav-launcher", "deploy/launcher", "pednav-run"),
-        ("pednav-actor", "actor", "pednav-actor"),
-        ("pednav-learner", "learner", "pednav-learner"),
-        ("pednav-curriculum", "curriculum-service", "pednav-curriculum"),
-    ];
-    let paths: Vec<PathBuf> = bins.iter().map(|(p, d, b)| binary(p, d, b)).collect();
-    paths[0].parent().unwrap().to_path_buf()
-}
-
-/// `deploy/run_local.sh` with one actor unless `extra` says `--actors`.
-fn run_local(run_dir: &Path, extra: &[&str]) -> Child {
-    let mut args = vec!["--run-dir", run_dir.to_str().unwrap()];
-    if !extra.contains(&"--actors") {
-        args.extend(["--actors", "1"]);
-    }
-    args.extend_from_slice(extra);
-    Command::new(workspace_root().join("deploy/run_local.sh"))
-        .args(&args)
-        .env("PEDNAV_SKIP_BUILD", "1")
-        .env("PEDNAV_BIN_DIR", bin_dir())
-        .stdin(Stdio::null())
-        .stdout(Stdio::null())
-        .stderr(std::fs::File::create(run_dir.with_extension(format!("launcher{}.log", extra.len()))).unwrap())
-        .spawn()
-        .expect("start deploy/run_local.sh")
-}
-
-fn stats(run_dir: &Path, name: &str) -> Option<Value> {
-    let text = std::fs::read_to_string(run_dir.join("stats").join(format!("{name}.json"))).ok()?;
-    serde_json::from_str(&text).ok()
-}
-
-fn num(v: &Value, key: &str) -> u64 {
-    v.get(key).and_then(Value::as_u64).unwrap_or_else(|| panic!("`{key}` missing in {v}"))
-}
-
-/// Wait until `cond` holds, failing with `what` and the logs after the watchdog.
-fn wait_for<T>(run_dir: &Path, what: &str, cond: impl FnMut() -> Option<T>) -> T {
-    wait_within(run_dir, what, WATCHDOG, cond)
-}
-
-/// [`wait_for`] with its own watchdog.
-fn wait_within<T>(run_dir: &Path, what: &str, watchdog: Duration, mut cond: impl FnMut() -> Option<T>) -> T {
-    let start = Instant::now();
-    loop {
-        if let Some(v) = cond() {
-            return v;
-        }
-        if start.elapsed() > watchdog {
-            let mut logs = String::new();
-            for name in ["learner", "curriculum", "actor-0"] {
-                let text =
-                    std::fs::read_to_string(run_dir.join("logs").join(format!("{name}.log"))).unwrap_or_default();
-                let tail: Vec<&str> = text.lines().rev().take(15).collect();
-                logs += &format!("\n--- {name}.log (last lines, newest first)\n{}", tail.join("\n"));
-            }
-            panic!("watchdog: {what} did not happen within {watchdog:?}{logs}");
-        }
-        std::thread::sleep(Duration::from_millis(200));
-    }
-}
-
-/// The pid of the running `binary` whose command line names `run_dir`.
-fn pid_of(binary: &str, run_dir: &Path) -> Option<i32> {
-    let dir = run_dir.to_str()?;
-    std::fs::read_dir("/proc").ok()?.flatten().find_map(|e| {
-        let pid: i32 = e.file_name().to_str()?.parse().ok()?;
-        let cmdline = std::fs::read(e.path().join("cmdline")).ok()?;
-        let args: Vec<String> = cmdline.split(|&b| b == 0).map(|a| String::from_utf8_lossy(a).into_owned()).collect();
-        (args.first()?.ends_with(binary) && args.iter().any(|a| a == dir)).then_some(pid)
-    })
-}
-
-fn stop(child: &mut Child, run_dir: &Path) {
-    // SAFETY: signalling our own child.
-    unsafe { libc::kill(child.id() as i32, libc::SIGTERM) };
-    let status = wait_for(run_dir, "the run stopping after SIGTERM", || child.try_wait().unwrap());
-    assert!(status.success(), "run_local.sh exited with {status} after SIGTERM");
-}
+use pednav_tests::run::{actor, bin_dir, curriculum, learner, pid_of, run_local, stop, wait_for, wait_within};
+use pednav_tests::{scratch_dir, workspace_root};
 
 #[test]
 fn actor_learner_curriculum_run_restart_and_resume() {
@@ -113,48 +29,48 @@ fn actor_learner_curriculum_run_restart_and_resume() {
 
     // Phase 1: training with weight broadcasts.
     let first_actor = wait_for(&run_dir, "the actor acting with published weights", || {
-        let live = stats(&run_dir, "actor-0.live")?;
-        (live.get("last_policy_version")?.as_u64()? >= 10).then_some(live)
+        let live = actor(&run_dir, "actor-0.live")?;
+        (live.last_policy_version? >= 10).then_some(live)
     });
-    assert_eq!(num(&first_actor, "incarnation"), 1);
+    assert_eq!(first_actor.incarnation, 1);
 
     // Phase 2: SIGKILL the actor; the launcher must replace it and training must go on.
-    let killed_pid = num(&first_actor, "pid") as i32;
+    let killed_pid = first_actor.pid as i32;
     // SAFETY: the pid is the actor process our run started.
     unsafe { libc::kill(killed_pid, libc::SIGKILL) };
-    let updates_at_kill = num(&stats(&run_dir, "learner").unwrap(), "updates");
+    let updates_at_kill = learner(&run_dir).unwrap().updates;
     wait_for(&run_dir, "a replacement actor sending steps", || {
-        let live = stats(&run_dir, "actor-0.live")?;
-        (live.get("incarnation")?.as_u64()? == 2 && live.get("steps_sent")?.as_u64()? > 200).then_some(())
+        let live = actor(&run_dir, "actor-0.live")?;
+        (live.incarnation == 2 && live.steps_sent > 200).then_some(())
     });
     wait_for(&run_dir, "training continuing after the actor was replaced", || {
-        (num(&stats(&run_dir, "learner")?, "updates") > updates_at_kill + 50).then_some(())
+        (learner(&run_dir)?.updates > updates_at_kill + 50).then_some(())
     });
     stop(&mut run, &run_dir);
 
     // Every step of the replacement actor reached the learner, bit for bit.
-    let actor = stats(&run_dir, "actor-0.2").expect("the replacement actor wrote its final stats");
-    let learner = stats(&run_dir, "learner").unwrap();
-    assert_eq!(learner["status"], "stopped");
-    let streams = learner["streams"].as_array().unwrap();
-    let tally = streams
+    let replacement = actor(&run_dir, "actor-0.2").expect("the replacement actor wrote its final stats");
+    let final_learner = learner(&run_dir).unwrap();
+    assert_eq!(final_learner.status, "stopped");
+    let tally = final_learner
+        .streams
         .iter()
-        .find(|s| s["actor"] == 0 && s["incarnation"] == 2)
+        .find(|s| s.actor == 0 && s.incarnation == 2)
         .expect("the learner saw the replacement actor's stream");
-    assert_eq!(num(tally, "records"), num(&actor, "steps_sent"), "learner records vs actor sends");
-    assert_eq!(num(tally, "checksum"), num(&actor, "checksum"), "frame checksum");
-    for s in streams {
-        assert_eq!(num(s, "gaps"), 0, "no sequence gaps in {s}");
+    assert_eq!(tally.records, replacement.steps_sent, "learner records vs actor sends");
+    assert_eq!(tally.checksum, replacement.checksum, "frame checksum");
+    for s in &final_learner.streams {
+        assert_eq!(s.gaps, 0, "no sequence gaps in {s:?}");
     }
     // The weights the actor used came from the learner's broadcasts (version = update count).
-    let used = num(&actor, "last_policy_version");
-    assert!(used > 0 && used.is_multiple_of(5) && used <= num(&learner, "updates"), "actor used version {used}");
+    let used = replacement.last_policy_version.unwrap_or(0);
+    assert!(used > 0 && used.is_multiple_of(5) && used <= final_learner.updates, "actor used version {used}");
     // Tasks came from the curriculum service.
-    let curriculum = stats(&run_dir, "curriculum").expect("curriculum stats");
-    assert!(num(&actor, "tasks_received") >= 2, "{actor}");
-    assert!(num(&actor, "last_task_id") <= num(&curriculum, "tasks_issued"));
-    assert!(num(&curriculum, "episodes") >= num(&actor, "episodes"), "{curriculum} vs {actor}");
-    let checkpointed = num(&learner, "updates");
+    let first_curriculum = curriculum(&run_dir).expect("curriculum stats");
+    assert!(replacement.tasks_received >= 2, "{replacement:?}");
+    assert!(replacement.last_task_id <= first_curriculum.tasks_issued);
+    assert!(first_curriculum.episodes >= replacement.episodes, "{first_curriculum:?} vs {replacement:?}");
+    let checkpointed = final_learner.updates;
     assert!(
         run_dir.join("checkpoints/learner/state.json").exists() && run_dir.join("checkpoints/curriculum.json").exists()
     );
@@ -175,22 +91,22 @@ fn actor_learner_curriculum_run_restart_and_resume() {
     // Phase 3: restart into the same run directory resumes all processes.
     let mut run = run_local(&run_dir, &[]);
     let resumed = wait_for(&run_dir, "the resumed learner updating again", || {
-        let l = stats(&run_dir, "learner")?;
-        (l.get("resumed_from_update")?.as_u64()? == checkpointed && num(&l, "updates") > checkpointed + 10).then_some(l)
+        let l = learner(&run_dir)?;
+        (l.resumed_from_update? == checkpointed && l.updates > checkpointed + 10).then_some(l)
     });
-    assert!(num(&resumed, "updates") > checkpointed);
+    assert!(resumed.updates > checkpointed);
     let log = std::fs::read_to_string(run_dir.join("logs/curriculum.log")).unwrap();
     assert!(log.contains("resumed curriculum state"), "the curriculum service resumed");
 
     // Phase 4: SIGKILL the learner, then the curriculum service: the launcher restarts
     // each from its checkpoint / saved state and training goes on.
-    let learner_pid = num(&resumed, "pid") as i32;
+    let learner_pid = resumed.pid as i32;
     // SAFETY: the pid is the learner process our run started.
     unsafe { libc::kill(learner_pid, libc::SIGKILL) };
     let restarted = wait_for(&run_dir, "a restarted learner resuming and updating", || {
-        let l = stats(&run_dir, "learner")?;
-        let from = l.get("resumed_from_update")?.as_u64()?;
-        (num(&l, "pid") as i32 != learner_pid && num(&l, "updates") > from + 10).then_some(l)
+        let l = learner(&run_dir)?;
+        let from = l.resumed_from_update?;
+        (l.pid as i32 != learner_pid && l.updates > from + 10).then_some(l)
     });
     let curriculum_pid = pid_of("pednav-curriculum", &run_dir).expect("the curriculum service runs");
     // SAFETY: the pid is the curriculum service our run started.
@@ -198,15 +114,13 @@ fn actor_learner_curriculum_run_restart_and_resume() {
     wait_for(&run_dir, "a restarted curriculum service resuming, and training going on", || {
         let log = std::fs::read_to_string(run_dir.join("logs/curriculum.log")).ok()?;
         let resumes = log.matches("resumed curriculum state").count();
-        let updates = num(&stats(&run_dir, "learner")?, "updates");
-        (resumes >= 2
-            && pid_of("pednav-curriculum", &run_dir)? != curriculum_pid
-            && updates > num(&restarted, "updates") + 20)
+        let updates = learner(&run_dir)?.updates;
+        (resumes >= 2 && pid_of("pednav-curriculum", &run_dir)? != curriculum_pid && updates > restarted.updates + 20)
             .then_some(())
     });
     stop(&mut run, &run_dir);
-    let after = stats(&run_dir, "curriculum").unwrap();
-    assert!(num(&after, "episodes") >= num(&curriculum, "episodes"), "curriculum counters carried over");
+    let after = curriculum(&run_dir).unwrap();
+    assert!(after.episodes >= first_curriculum.episodes, "curriculum counters carried over");
 }
 
 #[test]
@@ -319,14 +233,14 @@ fn two_runs_side_by_side_do_not_interfere_and_stop_at_their_budget() {
     for ((run_dir, mut child), max_updates) in runs.into_iter().zip([40, 60]) {
         let status = wait_for(&run_dir, "the run stopping at its update budget", || child.try_wait().unwrap());
         assert!(status.success(), "{} exited with {status}", run_dir.display());
-        let learner = stats(&run_dir, "learner").unwrap();
-        assert_eq!(learner["status"], "max_updates");
-        assert_eq!(num(&learner, "updates"), max_updates, "each run kept its own budget");
-        let actor = stats(&run_dir, "actor-0.1").expect("the actor's final stats");
-        let streams = learner["streams"].as_array().unwrap();
+        let l = learner(&run_dir).unwrap();
+        assert_eq!(l.status, "max_updates");
+        assert_eq!(l.updates, max_updates, "each run kept its own budget");
+        let a = actor(&run_dir, "actor-0.1").expect("the actor's final stats");
+        let streams = &l.streams;
         assert_eq!(streams.len(), 1, "only this run's actor reached this learner: {streams:?}");
-        assert_eq!(num(&streams[0], "records"), num(&actor, "steps_sent"));
-        assert_eq!(num(&streams[0], "checksum"), num(&actor, "checksum"));
+        assert_eq!(streams[0].records, a.steps_sent);
+        assert_eq!(streams[0].checksum, a.checksum);
     }
 }
 
@@ -361,14 +275,10 @@ fn the_state_preset_learns_the_first_task_within_its_step_budget() {
     if opened {
         stop(&mut run, &run_dir);
     }
-    let curriculum = stats(&run_dir, "curriculum").expect("curriculum stats");
-    let learner = stats(&run_dir, "learner").expect("learner stats");
-    assert_eq!(
-        curriculum["acl_phase"], true,
-        "the gate did not open within {LEARNING_STEP_BUDGET} env steps: {curriculum}, learner {}",
-        learner["status"]
-    );
+    let c = curriculum(&run_dir).expect("curriculum stats");
+    let l = learner(&run_dir).expect("learner stats");
+    assert!(c.acl_phase, "the gate did not open within {LEARNING_STEP_BUDGET} env steps: {c:?}, learner {}", l.status);
     // The preset's warm-up is 5e4 env steps: the gate must open on episodes after it.
-    let passed_at = &curriculum["first_task_passed"];
-    assert!(num(passed_at, "decision_steps") > 50_000, "the gate opened during the warm-up: {curriculum}");
+    let passed_at = c.first_task_passed.expect("this process saw the gate open");
+    assert!(passed_at.decision_steps > 50_000, "the gate opened during the warm-up: {c:?}");
 }

@@ -143,7 +143,8 @@ pub fn launch(args: Launch) -> Result<()> {
         }
     }
     let dir = RunDir::new(&run_dir);
-    let resumed = dir.prepare(&cfg)?;
+    let resumed =
+        dir.prepare(&cfg).with_context(|| format!("the run directory {} cannot be used", run_dir.display()))?;
     let lock = dir.launcher_lock();
     if let Some(pid) = std::fs::read_to_string(&lock).ok().and_then(|s| s.trim().parse::<i32>().ok())
         && pid_alive(pid)
@@ -151,7 +152,12 @@ pub fn launch(args: Launch) -> Result<()> {
     {
         bail!("{} is already being run by pednav-run (pid {pid})", run_dir.display());
     }
-    std::fs::write(&lock, std::process::id().to_string())?;
+    std::fs::write(&lock, std::process::id().to_string()).with_context(|| {
+        format!(
+            "{}: cannot write the launcher's lock file (is the run directory writable, the disk full?)",
+            lock.display()
+        )
+    })?;
     let _ = std::fs::remove_file(dir.done_marker());
     let stop = StopFlag::install();
     eprintln!(

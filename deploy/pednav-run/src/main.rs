@@ -15,6 +15,7 @@
 //! `supervisor.rs` keeps the processes alive.
 
 mod bench;
+mod exit_cause;
 mod launch;
 mod soak;
 mod supervisor;
@@ -53,7 +54,20 @@ enum Cmd {
     },
 }
 
-fn main() -> Result<()> {
+/// Exit with the error's report on failure: its message and `Caused by:` chain, and
+/// never a backtrace — `RUST_BACKTRACE` or `RUST_LIB_BACKTRACE` in a user's
+/// environment would otherwise bury the cause under frames of the launcher itself.
+fn main() -> std::process::ExitCode {
+    match run() {
+        Ok(()) => std::process::ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("{}", exit_cause::report_of(&e));
+            std::process::ExitCode::FAILURE
+        }
+    }
+}
+
+fn run() -> Result<()> {
     pednav_runtime::init_logging();
     match Cli::parse().command {
         Cmd::Bench(b) => bench::run(b),

@@ -23,9 +23,10 @@
 //!   never signalled. The pid is opened as a pidfd, checked again, then signalled
 //!   through the pidfd, so a pid reused in between cannot be hit. (The stats files'
 //!   `pid` lag a restart by up to a metrics interval, so they are not used for this.)
-//! - **Restarts**: the launcher's `pednav: NAME exited (…); restarting it … (restart
-//!   N)` lines on its stderr ([`parse_restart`]), matched to the kills; the rest are
-//!   unplanned deaths. Its stderr is kept in `<run>/soak-launcher.log`.
+//! - **Restarts**: the launcher's records of them (`<run>/restarts.jsonl`, one
+//!   [`pednav_runtime::RestartRecord`] each, read as the soak polls), matched to the
+//!   kills; the rest are unplanned deaths. Its stderr is kept in
+//!   `<run>/soak-launcher.log`.
 //! - **Training continued** after a kill when the learner's stats (`stats/learner.json`,
 //!   polled every 250 ms, tagged by pid) show more updates *and* more env steps than
 //!   `metrics/learner.csv` showed at the kill, written after the launcher restarted the
@@ -68,6 +69,7 @@ use std::time::{Duration, Instant};
 use anyhow::{Context, Result, bail};
 use clap::Args;
 use pednav_runtime::ipc::STEP_ROUND_PER_ACTOR;
+use pednav_runtime::stats::{self, ActorStats, LearnerStats};
 use pednav_runtime::{RunConfig, RunDir, StopFlag};
 use rand_chacha::ChaCha8Rng;
 use rand_chacha::rand_core::{RngCore, SeedableRng};
@@ -341,14 +343,25 @@ pub struct Restart {
     pub number: u32,
 }
 
-/// `(process, status, restart number)` of a launcher line `pednav: NAME exited
-/// (STATUS); restarting it[ from …] (restart N)`.
-pub fn parse_restart(line: &str) -> Option<(String, String, u32)> {
-    let rest = line.trim().strip_prefix("pednav: ")?;
-    let (process, rest) = rest.split_once(" exited (")?;
-    let (status, rest) = rest.rsplit_once("); restarting it")?;
-    let number = rest.rsplit_once("(restart ")?.1.strip_suffix(')')?.trim().parse().ok()?;
-    Some((process.to_string(), status.to_string(), number))
+/// Seconds since the Unix epoch.
+fn unix_now() -> f64 {
+    std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map_or(0.0, |d| d.as_secs_f64())
+}
+
+/// Take the restarts the launcher recorded since the last look (`restarts.jsonl`,
+/// [`pednav_runtime::RestartRecord`]) into the log, timed from the soak's start.
+fn take_restarts(dir: &RunDir, started_unix: f64, log: &Mutex<LauncherLog>) {
+    let records = dir.read_restarts();
+    let mut l = log.lock().unwrap();
+    let seen = l.restarts.len();
+    for r in records.into_iter().skip(seen) {
+        l.restarts.push(Restart {
+            at: r.unix_time - started_unix,
+            process: r.process,
+            status: r.status,
+            number: r.restart,
+        });
+    }
 }
 
 /// What the launcher's stderr told.
@@ -391,17 +404,18 @@ struct Observer {
     samples: Vec<Sample>,
     points: Vec<LearnerPoint>,
     /// The last `stats/learner.json` of each learner process (by pid).
-    learners: BTreeMap<u64, Value>,
+    learners: BTreeMap<u64, LearnerStats>,
     /// The last `actor-K.live.json` of each (actor, incarnation), and when it was first seen sending.
-    actors_live: BTreeMap<(u64, u64), (Value, Option<f64>)>,
+    actors_live: BTreeMap<(u64, u64), (ActorStats, Option<f64>)>,
 }
 
-fn read_json(path: &Path) -> Option<Value> {
-    serde_json::from_str(&std::fs::read_to_string(path).ok()?).ok()
-}
-
-fn num(v: &Value, key: &str) -> u64 {
-    v.get(key).and_then(Value::as_u64).unwrap_or(0)
+/// A stats file as its writer's type; `None` while it does not exist, or (with a
+/// warning) when it does not parse — the soak goes on and its report shows the gap.
+fn read_stats<T: serde::de::DeserializeOwned>(dir: &RunDir, name: &str) -> Option<T> {
+    dir.read_stats(name).unwrap_or_else(|e| {
+        tracing::warn!("{e}");
+        None
+    })
 }
 
 impl Observer {
@@ -421,16 +435,15 @@ impl Observer {
 
     fn poll(&mut self, t: f64) {
         self.read_csv(t);
-        if let Some(v) = read_json(&self.dir.stats().join("learner.json"))
-            && let Some(pid) = v.get("pid").and_then(Value::as_u64)
-        {
+        if let Some(v) = read_stats::<LearnerStats>(&self.dir, "learner") {
+            let pid = v.pid as u64;
             let point = LearnerPoint {
                 t,
                 pid,
-                updates: num(&v, "updates"),
-                env_steps: num(&v, "received_total"),
-                resumed_from: v.get("resumed_from_update").and_then(Value::as_u64),
-                resumed_env_steps: num(&v, "received_total").saturating_sub(num(&v, "received_this_process")),
+                updates: v.updates,
+                env_steps: v.received_total,
+                resumed_from: v.resumed_from_update,
+                resumed_env_steps: v.received_total.saturating_sub(v.received_this_process),
             };
             if self
                 .points
@@ -442,10 +455,10 @@ impl Observer {
             self.learners.insert(pid, v);
         }
         for k in 0..self.actors {
-            if let Some(v) = read_json(&self.dir.stats().join(format!("actor-{k}.live.json"))) {
-                let key = (num(&v, "actor"), num(&v, "incarnation"));
-                let sending = num(&v, "steps_sent") > 0;
-                let entry = self.actors_live.entry(key).or_insert((Value::Null, None));
+            if let Some(v) = read_stats::<ActorStats>(&self.dir, &stats::actor_live(k)) {
+                let key = (v.actor as u64, v.incarnation as u64);
+                let sending = v.steps_sent > 0;
+                let entry = self.actors_live.entry(key).or_insert((v.clone(), None));
                 if sending && entry.1.is_none() {
                     entry.1 = Some(t);
                 }
@@ -674,7 +687,7 @@ fn snapshot_binaries(bin: &Path) -> Result<()> {
         let (src, dst) = (from.join(b), bin.join(b));
         if !src.exists() {
             bail!(
-                "{} not found (build it: cargo build --release -p pednav-launcher -p pednav-actor -p pednav-learner -p pednav-curriculum)",
+                "{} not found (build it: cargo build --release -p pednav-run -p pednav-actor -p pednav-learner -p pednav-curriculum)",
                 src.display()
             );
         }
@@ -716,6 +729,7 @@ pub fn run(args: Soak) -> Result<()> {
 
     let stop = StopFlag::install();
     let start = Instant::now();
+    let started_unix = unix_now();
     let now = move || start.elapsed().as_secs_f64();
     let mut cmd = Command::new(bin.join("pednav-run"));
     cmd.arg("launch")
@@ -751,9 +765,6 @@ pub fn run(args: Soak) -> Result<()> {
                 }
                 eprintln!("  launcher | {line}");
                 let mut l = log.lock().unwrap();
-                if let Some((process, status, number)) = parse_restart(&line) {
-                    l.restarts.push(Restart { at: now(), process, status, number });
-                }
                 if line.starts_with('[')
                     && let Some(n) = line.rsplit_once("restarts ").and_then(|(_, n)| n.trim().parse().ok())
                 {
@@ -773,6 +784,7 @@ pub fn run(args: Soak) -> Result<()> {
         std::thread::sleep(POLL);
         let t = now();
         obs.poll(t);
+        take_restarts(&dir, started_unix, &log);
         if let Some(status) = launcher.try_wait()? {
             early_exit = Some(status);
             break;
@@ -799,9 +811,9 @@ pub fn run(args: Soak) -> Result<()> {
         };
         obs.poll(now());
         let incarnation = match plan.victim {
-            Victim::Actor(k) => read_json(&dir.stats().join(format!("actor-{k}.live.json")))
-                .filter(|v| num(v, "pid") == pid as u64)
-                .map(|v| num(&v, "incarnation")),
+            Victim::Actor(k) => read_stats::<ActorStats>(&dir, &stats::actor_live(k))
+                .filter(|v| v.pid as u64 == pid as u64)
+                .map(|v| v.incarnation as u64),
             _ => None,
         };
         let before = obs.last_sample();
@@ -1117,8 +1129,8 @@ impl Report<'_> {
 
         // End figures.
         let last = obs.last_sample();
-        let final_learner = read_json(&RunDir::new(self.run_dir).stats().join("learner.json"));
-        let final_status = final_learner.as_ref().and_then(|v| v.get("status")?.as_str().map(String::from));
+        let final_learner = read_stats::<LearnerStats>(&RunDir::new(self.run_dir), "learner");
+        let final_status = final_learner.as_ref().map(|v| v.status.clone());
         md += &format!(
             "\nAt the end (metrics/learner.csv): env steps {}, updates {}; the last learner's status: {} (a final \
              checkpoint is written on `stopped`).\n",
@@ -1131,28 +1143,25 @@ impl Report<'_> {
         }
 
         // Step accounting.
-        let final_pid = final_learner.as_ref().map(|v| num(v, "pid"));
-        let mut views: Vec<(u64, &Value)> = obs.learners.iter().map(|(p, v)| (*p, v)).collect();
+        let final_pid = final_learner.as_ref().map(|v| v.pid as u64);
+        let mut views: Vec<(u64, &LearnerStats)> = obs.learners.iter().map(|(p, v)| (*p, v)).collect();
         if let (Some(pid), Some(v)) = (final_pid, final_learner.as_ref()) {
             views.retain(|(p, _)| *p != pid);
             views.push((pid, v));
         }
         let mut received: BTreeMap<(u64, u64), Vec<Received>> = BTreeMap::new();
         for (_, v) in &views {
-            for s in v.get("streams").and_then(Value::as_array).into_iter().flatten() {
-                received.entry((num(s, "actor"), num(s, "incarnation"))).or_default().push(Received {
-                    records: num(s, "records"),
-                    checksum: num(s, "checksum") as u32,
-                    gaps: num(s, "gaps"),
+            for s in &v.streams {
+                received.entry((s.actor as u64, s.incarnation as u64)).or_default().push(Received {
+                    records: s.records,
+                    checksum: s.checksum,
+                    gaps: s.gaps,
                 });
             }
         }
         let mut sent: BTreeMap<(u64, u64), Sent> = BTreeMap::new();
         for ((a, i), (v, _)) in &obs.actors_live {
-            sent.insert(
-                (*a, *i),
-                Sent { steps: num(v, "steps_sent"), checksum: num(v, "checksum") as u32, exact: false },
-            );
+            sent.insert((*a, *i), Sent { steps: v.steps_sent, checksum: v.checksum, exact: false });
         }
         for entry in std::fs::read_dir(RunDir::new(self.run_dir).stats()).into_iter().flatten().flatten() {
             let name = entry.file_name().to_string_lossy().to_string();
@@ -1161,13 +1170,13 @@ impl Report<'_> {
                 .and_then(|n| n.strip_suffix(".json"))
                 .and_then(|n| n.split_once('.'))
                 .filter(|(a, i)| a.parse::<u64>().is_ok() && i.parse::<u64>().is_ok())
-                .and_then(|_| read_json(&entry.path()))
+                .and_then(|_| read_stats::<ActorStats>(&RunDir::new(self.run_dir), name.trim_end_matches(".json")))
             else {
                 continue;
             };
             sent.insert(
-                (num(&v, "actor"), num(&v, "incarnation")),
-                Sent { steps: num(&v, "steps_sent"), checksum: num(&v, "checksum") as u32, exact: true },
+                (v.actor as u64, v.incarnation as u64),
+                Sent { steps: v.steps_sent, checksum: v.checksum, exact: true },
             );
         }
         // Each learner restart, with what a stream crossing it may lose (unbounded for a
@@ -1471,29 +1480,6 @@ mod tests {
         );
         assert_eq!(find_victim(&root, me, run, Victim::Learner), None);
         std::fs::remove_dir_all(&root).unwrap();
-    }
-
-    /// The launcher's restart lines (the supervisor's format) parse; others do not.
-    #[test]
-    fn launcher_restart_lines_parse() {
-        assert_eq!(
-            parse_restart(
-                "pednav: learner exited (signal: 9 (SIGKILL)); restarting it from its last checkpoint (restart 2)"
-            ),
-            Some(("learner".into(), "signal: 9 (SIGKILL)".into(), 2))
-        );
-        assert_eq!(
-            parse_restart("pednav: actor-1 exited (exit status: 1); restarting it (restart 1)"),
-            Some(("actor-1".into(), "exit status: 1".into(), 1))
-        );
-        assert_eq!(
-            parse_restart(
-                "pednav: curriculum exited (hung: no heartbeat for 600 s); restarting it from its saved state (restart 1)"
-            ),
-            Some(("curriculum".into(), "hung: no heartbeat for 600 s".into(), 1))
-        );
-        assert_eq!(parse_restart("[00:01:00] steps 10 (5/s) | updates 1 | actors 2/2 restarts 1"), None);
-        assert_eq!(parse_restart("pednav: stopping — actors first"), None);
     }
 
     /// The accounting of one stream, case by case.

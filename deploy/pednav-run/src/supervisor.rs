@@ -22,7 +22,9 @@ use anyhow::{Context, Result, bail};
 use pednav_nets::DeviceSpec;
 use pednav_runtime::ipc::HeartbeatSubscriber;
 use pednav_runtime::messages::{Heartbeat, process_kind};
-use pednav_runtime::{Ipc, RunConfig, RunDir, StopFlag, run_prefix};
+use pednav_runtime::{Ipc, RestartRecord, RunConfig, RunDir, StopFlag, run_prefix};
+
+use crate::exit_cause::ExitCause;
 
 /// A process that dies more than this many times within [`RESTART_WINDOW`] ends the run.
 pub(crate) const MAX_RESTARTS: usize = 5;
@@ -43,27 +45,51 @@ struct Proc {
     /// Whether silence means a hang (the learner and the curriculum service; an actor
     /// legitimately stays silent while it waits for a restarting learner).
     watch_hang: bool,
+    /// The headline of its last death's cause, and how many deaths in a row had it.
+    last_cause: Option<(String, u32)>,
+    /// When a process that died of the same cause again is started (back-off).
+    restart_at: Option<Instant>,
 }
 
 impl Proc {
-    /// Count a death against the restart budget; an error (with the cause from the
+    /// Count a death against the restart budget; an error naming the cause (from the
     /// log) when the budget is spent.
-    fn count_restart(&mut self, status: &str) -> Result<()> {
+    fn count_restart(&mut self, status: &str, cause: &ExitCause) -> Result<()> {
         self.restarts.push_back(Instant::now());
         while self.restarts.front().is_some_and(|t| t.elapsed() > RESTART_WINDOW) {
             self.restarts.pop_front();
         }
         if self.restarts.len() > MAX_RESTARTS {
             bail!(
-                "{} died {} times within {} s ({status}); from its log:\n{}",
+                "{} died {} times within {} s ({status}): {}\nfrom its log ({}):\n{}",
                 self.name,
                 MAX_RESTARTS + 1,
                 RESTART_WINDOW.as_secs(),
-                self.log_tail()
+                cause.headline(),
+                self.log.display(),
+                cause.report()
             );
         }
         self.total_restarts += 1;
         Ok(())
+    }
+
+    /// How long to wait before restarting it after a death with `headline`: nothing the
+    /// first time, then 2, 4, 8 … up to [`MAX_BACKOFF`] seconds while the same error
+    /// repeats (a fault that a restart alone does not fix); returns the delay and the
+    /// number of deaths in a row with that error.
+    fn backoff(&mut self, headline: &str) -> (Duration, u32) {
+        let repeats = match &self.last_cause {
+            Some((h, n)) if h == headline => n + 1,
+            _ => 1,
+        };
+        self.last_cause = Some((headline.to_string(), repeats));
+        let delay = if repeats < 2 {
+            Duration::ZERO
+        } else {
+            (Duration::from_secs(1) * 2u32.pow((repeats - 1).min(6))).min(MAX_BACKOFF)
+        };
+        (delay, repeats)
     }
 
     fn start(&mut self) -> Result<()> {
@@ -116,23 +142,14 @@ impl Proc {
         self.child.is_some()
     }
 
-    /// Why the process ended, from its log ([`exit_cause`]).
-    fn log_tail(&self) -> String {
-        exit_cause(&std::fs::read_to_string(&self.log).unwrap_or_default())
+    /// Why the process ended, from its log ([`ExitCause`]).
+    fn exit_cause(&self) -> ExitCause {
+        ExitCause::parse(&std::fs::read_to_string(&self.log).unwrap_or_default())
     }
 }
 
-/// The cause of a process's exit as its log tells it: the error a pednav binary
-/// printed last (`Error: …` and its `Caused by:` chain, as `anyhow` writes it when
-/// `main` returns an error) with the log line before it for context; a log without
-/// one (a crash, a signal) gives its last 8 lines.
-pub fn exit_cause(log: &str) -> String {
-    let lines: Vec<&str> = log.lines().collect();
-    match lines.iter().rposition(|l| l.starts_with("Error: ")) {
-        Some(i) => lines[i.saturating_sub(1)..].join("\n"),
-        None => lines[lines.len().saturating_sub(8)..].join("\n"),
-    }
-}
+/// The longest wait before restarting a process that keeps dying of the same error.
+pub(crate) const MAX_BACKOFF: Duration = Duration::from_secs(60);
 
 /// Stop processes with SIGTERM, SIGKILL after `grace`.
 fn stop_all(procs: &mut [&mut Proc], grace: Duration) {
@@ -190,6 +207,10 @@ pub struct Supervisor {
     started: Instant,
     last_line: Instant,
     tty: bool,
+    /// `runtime.max_env_steps` and `max_updates` (0: none).
+    budget: (u64, u64),
+    /// The learner's (time, env steps, updates) over the last two minutes, for the ETA.
+    pace: VecDeque<(Instant, u64, u64)>,
 }
 
 impl Supervisor {
@@ -215,6 +236,8 @@ impl Supervisor {
             total_restarts: 0,
             heartbeat,
             watch_hang: heartbeat.0 != process_kind::ACTOR,
+            last_cause: None,
+            restart_at: None,
         };
         let mut curriculum = mk(
             "curriculum".into(),
@@ -262,6 +285,8 @@ impl Supervisor {
             started: Instant::now(),
             last_line: Instant::now(),
             tty: std::io::stderr().is_terminal(),
+            budget: (cfg.runtime.max_env_steps, cfg.runtime.max_updates),
+            pace: VecDeque::new(),
         })
     }
 
@@ -295,8 +320,16 @@ impl Supervisor {
             self.latest.insert((h.kind, h.id), *h);
             self.last_beat.insert((h.kind, h.id), Instant::now());
         }
-        let Supervisor { learner, curriculum, actors, last_beat, ipc, stop, hang, .. } = self;
+        let Supervisor { learner, curriculum, actors, last_beat, ipc, stop, hang, dir, .. } = self;
         for p in [learner, curriculum].into_iter().chain(actors.iter_mut()) {
+            if let Some(at) = p.restart_at {
+                if Instant::now() >= at && !stop.is_set() {
+                    p.restart_at = None;
+                    ipc.cleanup_dead_nodes();
+                    p.start()?;
+                }
+                continue;
+            }
             let status = match p.exited() {
                 Some(status) => status.to_string(),
                 None if p.watch_hang && last_beat.get(&p.heartbeat).is_some_and(|t| t.elapsed() > *hang) => {
@@ -309,16 +342,46 @@ impl Supervisor {
             if stop.is_set() {
                 return Ok(false);
             }
-            p.count_restart(&status)?;
+            let cause = p.exit_cause();
+            p.count_restart(&status, &cause)?;
             let from = match p.heartbeat.0 {
                 process_kind::LEARNER => " from its last checkpoint",
                 process_kind::CURRICULUM => " from its saved state",
                 _ => "",
             };
-            eprintln!("\npednav: {} exited ({status}); restarting it{from} (restart {})", p.name, p.total_restarts);
+            let headline = cause.headline();
+            let (delay, repeats) = p.backoff(&headline);
             last_beat.remove(&p.heartbeat);
-            ipc.cleanup_dead_nodes();
-            p.start()?;
+            let record = RestartRecord {
+                unix_time: std::time::SystemTime::now()
+                    .duration_since(std::time::UNIX_EPOCH)
+                    .map_or(0.0, |d| d.as_secs_f64()),
+                process: p.name.clone(),
+                status: status.clone(),
+                cause: headline.clone(),
+                restart: p.total_restarts,
+                delay_secs: delay.as_secs_f64(),
+            };
+            if let Err(e) = dir.append_restart(&record) {
+                tracing::warn!("the restart could not be recorded: {e}");
+            }
+            if delay.is_zero() {
+                eprintln!(
+                    "\npednav: {} exited ({status}): {headline}; restarting it{from} (restart {})",
+                    p.name, p.total_restarts
+                );
+                ipc.cleanup_dead_nodes();
+                p.start()?;
+            } else {
+                eprintln!(
+                    "\npednav: {} exited ({status}): {headline} — the same error {repeats} times in a row: \
+                     restarting it{from} in {} s (restart {})",
+                    p.name,
+                    delay.as_secs(),
+                    p.total_restarts
+                );
+                p.restart_at = Some(Instant::now() + delay);
+            }
         }
         if let Ok(reason) = std::fs::read_to_string(self.dir.done_marker()) {
             eprintln!("\npednav: the learner reached its budget ({reason})");
@@ -328,7 +391,11 @@ impl Supervisor {
         if self.last_line.elapsed() >= every {
             self.last_line = Instant::now();
             let restarts = self.learner.total_restarts + self.curriculum.total_restarts;
-            let line = progress_line(self.started.elapsed(), &self.latest, &self.actors, restarts);
+            let mut line = progress_line(self.started.elapsed(), &self.latest, &self.actors, restarts);
+            for extra in [self.budget_progress(), self.faults_line(), self.backoff_line()].into_iter().flatten() {
+                line.push_str(" | ");
+                line.push_str(&extra);
+            }
             if self.tty {
                 eprint!("\r\x1b[2K{line}");
             } else {
@@ -337,6 +404,63 @@ impl Supervisor {
             let _ = std::io::stderr().flush();
         }
         Ok(true)
+    }
+
+    /// `37 % ETA 00:21:13` when the run has a budget (env steps or updates): the share
+    /// done and the time left at the pace of the last two minutes.
+    fn budget_progress(&mut self) -> Option<String> {
+        let (max_steps, max_updates) = self.budget;
+        let h = self.latest.get(&(process_kind::LEARNER, 0))?;
+        let now = Instant::now();
+        self.pace.push_back((now, h.env_steps, h.updates));
+        while self.pace.front().is_some_and(|p| now.duration_since(p.0) > Duration::from_secs(120)) {
+            self.pace.pop_front();
+        }
+        let (t0, s0, u0) = *self.pace.front()?;
+        let secs = now.duration_since(t0).as_secs_f64();
+        // The budget that ends the run first, as (done, total, rate per second).
+        // (A learner resumed from a checkpoint may report fewer steps than before it died.)
+        let steps = (max_steps > 0).then(|| (h.env_steps, max_steps, h.env_steps.saturating_sub(s0) as f64 / secs));
+        let updates = (max_updates > 0).then(|| (h.updates, max_updates, h.updates.saturating_sub(u0) as f64 / secs));
+        let left = |(done, total, rate): (u64, u64, f64)| total.saturating_sub(done) as f64 / rate.max(1e-9);
+        let (done, total, rate) =
+            [steps, updates].into_iter().flatten().min_by(|a, b| left(*a).total_cmp(&left(*b)))?;
+        let share = 100.0 * done as f64 / total as f64;
+        if secs < 5.0 || rate <= 0.0 {
+            return Some(format!("{share:.0} %"));
+        }
+        let eta = left((done, total, rate)) as u64;
+        Some(format!("{share:.0} % ETA {:02}:{:02}:{:02}", eta / 3600, (eta / 60) % 60, eta % 60))
+    }
+
+    /// What the learner and the curriculum service could not write, from their heartbeats.
+    fn faults_line(&self) -> Option<String> {
+        let parts: Vec<String> = [(process_kind::LEARNER, "update"), (process_kind::CURRICULUM, "episodes")]
+            .into_iter()
+            .filter_map(|(kind, unit)| self.latest.get(&(kind, 0)).and_then(|h| h.faults.describe(h.last_good, unit)))
+            .chain(
+                self.latest
+                    .iter()
+                    .filter(|(k, h)| k.0 == process_kind::ACTOR && h.faults.any())
+                    .map(|(k, h)| format!("actor-{}: {}", k.1, h.faults.describe(0, "").unwrap_or_default())),
+            )
+            .collect();
+        (!parts.is_empty()).then(|| parts.join("; "))
+    }
+
+    /// Processes waiting out a back-off before their restart.
+    fn backoff_line(&self) -> Option<String> {
+        let waiting: Vec<String> = [&self.learner, &self.curriculum]
+            .into_iter()
+            .chain(self.actors.iter())
+            .filter_map(|p| {
+                let at = p.restart_at?;
+                let (_, repeats) = p.last_cause.as_ref()?;
+                let secs = at.saturating_duration_since(Instant::now()).as_secs();
+                Some(format!("{} restarting in {secs} s (same error {repeats}×)", p.name))
+            })
+            .collect();
+        (!waiting.is_empty()).then(|| waiting.join(", "))
     }
 
     /// Actors first, then the learner (final checkpoint) and the curriculum service (state).
@@ -383,30 +507,33 @@ fn progress_line(
 
 #[cfg(test)]
 mod tests {
-    use super::exit_cause;
+    use super::*;
 
-    /// A failed process's log gives its error, the `Caused by:` chain and the line
-    /// before it — not the progress lines logged long before; a log without an error
-    /// gives its tail.
+    fn proc_named(name: &str) -> Proc {
+        Proc {
+            name: name.into(),
+            args: Vec::new(),
+            binary: PathBuf::from("/nonexistent"),
+            log: PathBuf::from("/nonexistent.log"),
+            child: None,
+            restarts: VecDeque::new(),
+            total_restarts: 0,
+            heartbeat: (process_kind::LEARNER, 0),
+            watch_hang: true,
+            last_cause: None,
+            restart_at: None,
+        }
+    }
+
+    /// A death of a new cause restarts at once; the same cause again waits 2, 4, 8 …
+    /// seconds, at most a minute, so a fault a restart cannot fix does not spend the
+    /// restart budget in seconds.
     #[test]
-    fn the_exit_cause_is_the_error_and_its_chain() {
-        let mut log: Vec<String> =
-            (0..20).map(|i| format!("2026-12-01T10:00:{i:02}Z  INFO learner received={i}")).collect();
-        log.push("2026-12-01T10:00:21Z  INFO resuming".into());
-        log.extend(
-            [
-                "Error: resuming from runs/x/checkpoints/learner",
-                "",
-                "Caused by:",
-                "    checkpoint runs/x/checkpoints/learner/policy.safetensors: checksum mismatch (file 1a2b, state file 3c4d): the file is corrupted",
-            ]
-            .map(String::from),
-        );
-        let cause = exit_cause(&log.join("\n"));
-        assert!(cause.starts_with("2026-12-01T10:00:21Z  INFO resuming\nError: resuming"), "{cause}");
-        assert!(cause.contains("checksum mismatch") && !cause.contains("received=19"), "{cause}");
-        let plain: String = (0..20).map(|i| format!("line {i}\n")).collect();
-        let tail = exit_cause(&plain);
-        assert!(tail.starts_with("line 12") && tail.ends_with("line 19"), "{tail}");
+    fn the_same_error_in_a_row_backs_off_and_a_new_one_does_not() {
+        let mut p = proc_named("learner");
+        let disk = "the final checkpoint could not be written — No space left on device (os error 28)";
+        let delays: Vec<(u64, u32)> = (0..9).map(|_| p.backoff(disk)).map(|(d, n)| (d.as_secs(), n)).collect();
+        assert_eq!(delays, [(0, 1), (2, 2), (4, 3), (8, 4), (16, 5), (32, 6), (60, 7), (60, 8), (60, 9)]);
+        assert_eq!(p.backoff("killed by SIGKILL"), (Duration::ZERO, 1), "another cause starts over");
     }
 }

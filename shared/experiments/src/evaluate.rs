@@ -132,7 +132,7 @@ impl Evaluator {
     ) -> Result<Evaluator> {
         let learned = matches!(kind, PolicyKind::Learned { .. });
         // Only a learned pixel policy needs the renderer.
-        let obs_mode = if learned { sim.obs_mode } else { ObsMode::StateDebug };
+        let obs_mode = if learned { sim.obs_mode } else { ObsMode::State };
         let world = Arc::new(SimWorld::new(scene, SimConfig { t_max, obs_mode, ..sim.clone() })?);
         let envs_ = VecEnv::new(world.clone(), envs, BackendChoice::from_env().map_err(ExperimentError::Plot)?)?;
         let policy = match kind {
@@ -337,7 +337,7 @@ pub fn oracle_per_point(
     t_max: u32,
     starts: &[(u32, f32, f32)],
 ) -> Result<BTreeMap<u32, f64>> {
-    let world = SimWorld::new(scene.clone(), SimConfig { t_max, obs_mode: ObsMode::StateDebug, ..sim.clone() })?;
+    let world = SimWorld::new(scene.clone(), SimConfig { t_max, obs_mode: ObsMode::State, ..sim.clone() })?;
     let oracle = Oracle::plan(&world, OracleConfig { gamma, ..OracleConfig::default() });
     Ok(starts
         .iter()

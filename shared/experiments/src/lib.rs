@@ -4,6 +4,8 @@
 //!   T_max 2000) and custom start lists;
 //! - [`evaluate`]: running the episodes with a checkpoint's policy (or random,
 //!   or the oracle), batched, deterministic per task;
+//! - [`bootstrap`]: confidence intervals of a difference between two variants'
+//!   averages, over runs and their episodes;
 //! - [`diagnose`]: what a trained agent learned along its evaluation episodes
 //!   (a linear probe of the encoder for pose and return, the critic against
 //!   Monte-Carlo returns);
@@ -16,6 +18,7 @@
 
 #![warn(missing_docs)]
 
+pub mod bootstrap;
 pub mod diagnose;
 pub mod error;
 pub mod evaluate;

@@ -1,7 +1,8 @@
 //! Episode results and the Table III aggregation.
 //!
 //! Per start point: mean ± std of the discounted return over all its episodes
-//! (8 yaws × runs; std is the population standard deviation, numpy's default),
+//! (8 yaws × runs; std is the sample standard deviation, n − 1 in the
+//! denominator, as everywhere in pednav's tables: [`mean_and_sample_std`]),
 //! the success rate, and the oracle's optimal return averaged over the same start
 //! yaws. Avg.Int and Avg.Ext are the means of the per-point means over points
 //! 0–7 and 8–13, as in the paper's Table III. For a start list of the user's
@@ -91,13 +92,12 @@ pub fn aggregate(results: &[EpisodeResult], oracle: &BTreeMap<u32, f64>, kind: R
         .into_iter()
         .map(|(point, rs)| {
             let g: Vec<f64> = rs.iter().map(|r| r.discounted_return as f64).collect();
-            let m = mean(&g);
-            let var = g.iter().map(|x| (x - m).powi(2)).sum::<f64>() / g.len() as f64;
+            let (m, std) = mean_and_sample_std(&g);
             PointRow {
                 point,
                 episodes: rs.len(),
                 mean: m,
-                std: var.sqrt(),
+                std,
                 success_rate: rs.iter().filter(|r| r.success).count() as f64 / rs.len() as f64,
                 oracle: oracle.get(&point).copied(),
             }
@@ -257,6 +257,16 @@ impl EvalSummary {
 }
 
 /// The share of the gap between a random walk and the oracle that `value` closes:
+/// Mean and sample standard deviation (n − 1 in the denominator; 0 for fewer than
+/// two values, where it is undefined — tables then show the mean alone with n = 1).
+pub fn mean_and_sample_std(v: &[f64]) -> (f64, f64) {
+    let m = v.iter().sum::<f64>() / v.len().max(1) as f64;
+    if v.len() < 2 {
+        return (m, 0.0);
+    }
+    (m, (v.iter().map(|x| (x - m).powi(2)).sum::<f64>() / (v.len() - 1) as f64).sqrt())
+}
+
 /// 0 at the random walk's return, 1 at the oracle's.
 pub fn gap_closed(value: f64, random: f64, oracle: f64) -> f64 {
     (value - random) / (oracle - random)
@@ -272,9 +282,9 @@ mod tests {
 
     #[test]
     fn aggregation_matches_hand_computed_values() {
-        // Point 0: returns 2, 4, 9 → mean 5, population var ((9 + 1 + 16)/3) = 26/3, std 2.9439.
-        // Point 1: returns −10, −20 → mean −15, std 5.
-        // Point 9: return −30 → mean −30, std 0.
+        // Point 0: returns 2, 4, 9 → mean 5, sample var (9 + 1 + 16)/2 = 13, std 3.6056.
+        // Point 1: returns −10, −20 → mean −15, sample var 50, std 7.0711.
+        // Point 9: return −30 → mean −30, std 0 (one value).
         let results = vec![
             r(0, 2.0, true),
             r(0, 4.0, true),
@@ -289,16 +299,17 @@ mod tests {
         let p0 = &t.rows[0];
         assert_eq!((p0.point, p0.episodes), (0, 3));
         assert!((p0.mean - 5.0).abs() < 1e-12);
-        assert!((p0.std - (26.0f64 / 3.0).sqrt()).abs() < 1e-12);
+        assert!((p0.std - 13.0f64.sqrt()).abs() < 1e-12);
         assert!((p0.success_rate - 2.0 / 3.0).abs() < 1e-12);
         assert_eq!(p0.oracle, Some(4.5));
-        assert!((t.rows[1].std - 5.0).abs() < 1e-12 && t.rows[1].success_rate == 0.5);
+        assert!((t.rows[1].std - 50.0f64.sqrt()).abs() < 1e-12 && t.rows[1].success_rate == 0.5);
+        assert_eq!(t.rows[2].std, 0.0);
         assert_eq!(t.rows[2].oracle, None);
         // Avg.Int = mean(5, −15) = −5; Avg.Ext = −30.
         assert_eq!(t.avg_int, Some(-5.0));
         assert_eq!(t.avg_ext, Some(-30.0));
         let text = t.render("test");
-        assert!(text.contains("5.0 ± 2.9") && text.contains("Avg.Int (points 0–7): -5.0"), "{text}");
+        assert!(text.contains("5.0 ± 3.6") && text.contains("Avg.Int (points 0–7): -5.0"), "{text}");
         // The same episodes as a start list: no Avg.Int/Ext; mean of the rows (5 − 15 − 30)/3.
         let t = aggregate(&results, &oracle, Rows::StartList);
         assert_eq!((t.avg_int, t.avg_ext), (None, None));

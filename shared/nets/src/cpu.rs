@@ -3,7 +3,7 @@
 //!
 //! - glibc malloc: by default large buffers are `mmap`ed and returned to the OS on
 //!   free, so every training step pays page faults for its activations (measured
-//!   2–2.6× slower, DESIGN §7). Raising the mmap and trim thresholds keeps them in the heap.
+//!   2–2.6× slower, docs/design.md §8). Raising the mmap and trim thresholds keeps them in the heap.
 //! - rayon: one global pool with one worker per available core (the convolution
 //!   kernel and candle's gemm both use it).
 //! - candle's CPU matmul asks for its thread count on every call, and unless
@@ -13,6 +13,19 @@
 //!   environment is only sound while no other thread can read it, so this is done
 //!   only when the process has a single thread (call this first thing in `main`).
 //!
+//! - denormals: subnormal floats are flushed to zero (MXCSR FTZ and DAZ) in the
+//!   calling thread, and so in every thread it starts afterwards (Linux copies the
+//!   floating-point control state into a new thread) — the rayon pool, candle's own
+//!   pools, gemm's. Training makes them: the first moments of AdamW for weights whose
+//!   inputs a ReLU switched off decay by β₁ = 0.9 per update through the subnormal
+//!   range (measured: 16 % of a pixel run's optimiser state after 120 k env steps),
+//!   and every arithmetic operation on one takes a slow microcode path. Values below
+//!   1.2e-38 become 0, which changes no result a float32 network can tell.
+//! - candle's barrier pool: its workers spin 25,000 times after every element-wise
+//!   operation before they sleep; on two cores that spinning took a core from the
+//!   convolution kernels and the actors (≈ 11 % of the learner's samples in a real
+//!   run). `CANDLE_BARRIER_POOL_SPIN_LIMIT` is set to [`BARRIER_SPIN_LIMIT`] unless
+//!   the user set it.
 //! - kernels: the instruction-set path of the custom kernels ([`crate::ops::Isa`],
 //!   `PEDNAV_ISA`) is resolved here, so a bad value stops the process at start-up
 //!   with the message naming the variable rather than inside the first convolution.
@@ -23,6 +36,42 @@ use std::sync::OnceLock;
 
 static INIT: OnceLock<usize> = OnceLock::new();
 
+/// Spins of a candle barrier-pool worker before it sleeps (candle's default: 25,000).
+pub const BARRIER_SPIN_LIMIT: u32 = 256;
+
+/// Flush subnormal floats to zero in the calling thread (x86-64: MXCSR FTZ | DAZ);
+/// threads it starts afterwards inherit the setting. A no-op elsewhere.
+pub fn flush_denormals() {
+    #[cfg(target_arch = "x86_64")]
+    {
+        const FTZ: u32 = 1 << 15;
+        const DAZ: u32 = 1 << 6;
+        let mut csr: u32 = 0;
+        // SAFETY: stmxcsr/ldmxcsr read and write this thread's SSE control register;
+        // setting FTZ and DAZ only changes how subnormal values are rounded.
+        unsafe {
+            std::arch::asm!("stmxcsr [{}]", in(reg) &mut csr, options(nostack));
+            csr |= FTZ | DAZ;
+            std::arch::asm!("ldmxcsr [{}]", in(reg) &csr, options(nostack));
+        }
+    }
+}
+
+/// Whether subnormal floats are flushed in the calling thread.
+pub fn denormals_flushed() -> bool {
+    #[cfg(target_arch = "x86_64")]
+    {
+        let mut csr: u32 = 0;
+        // SAFETY: stmxcsr only reads this thread's SSE control register.
+        unsafe { std::arch::asm!("stmxcsr [{}]", in(reg) &mut csr, options(nostack)) };
+        csr & ((1 << 15) | (1 << 6)) == (1 << 15) | (1 << 6)
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    {
+        false
+    }
+}
+
 /// Apply the allocator and thread settings; returns the number of worker threads.
 /// `threads = None` uses every available core. Later calls return the first result.
 /// Call it at the start of `main`, before anything spawns a thread (see the module
@@ -30,18 +79,25 @@ static INIT: OnceLock<usize> = OnceLock::new();
 pub fn init_cpu_runtime(threads: Option<usize>) -> usize {
     *INIT.get_or_init(|| {
         tune_malloc();
+        flush_denormals();
         let n = threads.unwrap_or_else(|| std::thread::available_parallelism().map(|n| n.get()).unwrap_or(1)).max(1);
         if process_threads() == Some(1) {
-            // Safety: this is the process's only thread, so nothing reads or writes the
+            // SAFETY: this is the process's only thread, so nothing reads or writes the
             // environment concurrently.
-            unsafe { std::env::set_var("RAYON_NUM_THREADS", n.to_string()) };
+            unsafe {
+                std::env::set_var("RAYON_NUM_THREADS", n.to_string());
+                if std::env::var_os("CANDLE_BARRIER_POOL_SPIN_LIMIT").is_none() {
+                    std::env::set_var("CANDLE_BARRIER_POOL_SPIN_LIMIT", BARRIER_SPIN_LIMIT.to_string());
+                }
+            }
         } else {
             tracing::debug!("init_cpu_runtime after other threads started: RAYON_NUM_THREADS left unset");
         }
         let isa = crate::ops::Isa::active();
         tracing::info!(isa = isa.name(), threads = n, "CPU kernels");
-        // If something already built the global pool, keep it.
-        let _ = rayon::ThreadPoolBuilder::new().num_threads(n).build_global();
+        // If something already built the global pool, keep it. Its workers flush
+        // denormals too (inherited; set again in case a platform does not copy it).
+        let _ = rayon::ThreadPoolBuilder::new().num_threads(n).start_handler(|_| flush_denormals()).build_global();
         rayon::current_num_threads()
     })
 }
@@ -50,7 +106,7 @@ pub fn init_cpu_runtime(threads: Option<usize>) -> usize {
 fn tune_malloc() {
     // Keep buffers up to 1 GiB in the heap and never trim it back eagerly.
     const MMAP_THRESHOLD: libc::c_int = 1 << 30;
-    // Safety: mallopt only changes allocator tuning parameters.
+    // SAFETY: mallopt only changes allocator tuning parameters.
     unsafe {
         libc::mallopt(libc::M_MMAP_THRESHOLD, MMAP_THRESHOLD);
         libc::mallopt(libc::M_TRIM_THRESHOLD, MMAP_THRESHOLD);

@@ -3,9 +3,9 @@
 //! Observation layout ([`Obs`]): frames (B, N_h, H, W) in [0, 1], oldest first; past
 //! actions (B, N_h − 1, 3) and rewards (B, N_h − 1), where entry j belongs to the
 //! step between frames j and j + 1. At an episode start the frames are padded with
-//! the first frame and the actions and rewards with zeros (DESIGN §4).
+//! the first frame and the actions and rewards with zeros (docs/design.md §4).
 //!
-//! 3D-TCN (paper Fig. 2, DESIGN §4): spatial stages 84 → 42 → 21 → 7 (kernels 4/4/3,
+//! 3D-TCN (paper Fig. 2, docs/design.md §4): spatial stages 84 → 42 → 21 → 7 (kernels 4/4/3,
 //! strides 2/2/3, padding 1/1/0, 16/32/64 channels), each with temporal kernel 2 and
 //! dilation 1, 2, 4, then one temporal convolution with dilation 1 over all remaining
 //! steps (T: 16 → 15 → 13 → 9 → 1); the histories go through four 1-D temporal

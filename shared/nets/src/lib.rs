@@ -5,7 +5,10 @@
 //!
 //! Call [`init_cpu_runtime`] once at process start-up.
 
+#![warn(missing_docs)]
+
 pub mod config;
+pub mod cpu;
 pub mod device;
 pub mod encoder;
 pub mod error;
@@ -15,16 +18,15 @@ pub mod nets;
 pub mod ops;
 pub mod optim;
 pub mod params;
-pub mod runtime;
 pub mod stream;
 
 pub use config::{ACTION_DIM, EncoderKind, NetsConfig};
+pub use cpu::init_cpu_runtime;
 pub use device::{CUDA_BUILT, DeviceSpec};
 pub use encoder::{Encoder, Obs, Transitions, temporal_plan};
 pub use error::{NetError, Result};
 pub use heads::{CholeskyGaussian, FractionNet, Fractions, PolicyNet, PolicySample, QuantileGrid, QuantileNet};
 pub use nets::{DsacNets, OnlineFeatures, StateHead, TransitionFeatures, TwinCritic};
-pub use optim::{AdamW, AdamWConfig, StepOutcome};
+pub use optim::{AdamW, AdamWConfig, OptimStep};
 pub use params::ParamStore;
-pub use runtime::init_cpu_runtime;
 pub use stream::PolicyStream;

@@ -41,7 +41,7 @@ impl AdamWConfig {
 
 /// What one step did.
 #[derive(Debug, Clone, Copy, PartialEq)]
-pub enum StepOutcome {
+pub enum OptimStep {
     /// Parameters were updated; the global gradient norm before clipping.
     Applied {
         /// ‖g‖₂ over all parameters.
@@ -103,16 +103,16 @@ impl AdamW {
     }
 
     /// One AdamW step from `grads`.
-    pub fn step(&mut self, grads: &GradStore) -> Result<StepOutcome> {
+    pub fn step(&mut self, grads: &GradStore) -> Result<OptimStep> {
         let norm = self.grad_norm(grads)?;
         self.step_with_norm(grads, norm)
     }
 
     /// One AdamW step from `grads` whose global norm the caller already computed
     /// with [`AdamW::grad_norm`] (so a caller that checks norms first does not pay twice).
-    pub fn step_with_norm(&mut self, grads: &GradStore, norm: f64) -> Result<StepOutcome> {
+    pub fn step_with_norm(&mut self, grads: &GradStore, norm: f64) -> Result<OptimStep> {
         if !norm.is_finite() {
-            return Ok(StepOutcome::SkippedNonFinite);
+            return Ok(OptimStep::SkippedNonFinite);
         }
         let clip = match self.cfg.max_grad_norm {
             Some(max) if norm > max => max / (norm + 1e-12),
@@ -140,7 +140,7 @@ impl AdamW {
             let decayed = (p.as_tensor() * (1.0 - c.lr * c.weight_decay))?;
             p.set(&(decayed - (update * c.lr)?)?)?;
         }
-        Ok(StepOutcome::Applied { grad_norm: norm })
+        Ok(OptimStep::Applied { grad_norm: norm })
     }
 
     /// The moments as named tensors (`<param>.m`, `<param>.v`) for a checkpoint.

@@ -76,7 +76,7 @@ impl PolicyStream {
     }
 
     /// Start an episode in `env` with its first frame: the window is the first frame
-    /// N_h times, with zero actions and rewards (DESIGN §4).
+    /// N_h times, with zero actions and rewards (docs/design.md §4).
     pub fn reset(&mut self, env: usize, frame: &[u8]) -> Result<()> {
         let f = self.frame_tensor(frame)?;
         let n = self.cfg.history;

@@ -3,8 +3,8 @@
 use candle_core::{Device, IndexOp, Tensor, Var};
 use pednav_nets::heads::standard_normal;
 use pednav_nets::{
-    AdamW, AdamWConfig, CholeskyGaussian, DsacNets, EncoderKind, NetsConfig, Obs, ParamStore, PolicyStream,
-    StepOutcome, Transitions,
+    AdamW, AdamWConfig, CholeskyGaussian, DsacNets, EncoderKind, NetsConfig, Obs, OptimStep, ParamStore, PolicyStream,
+    Transitions,
 };
 use proptest::prelude::*;
 use rand::{Rng, SeedableRng};
@@ -322,7 +322,7 @@ fn adamw_first_step_is_lr_times_sign_and_nonfinite_gradients_change_nothing() {
     let c = Tensor::new(&[2f32, -0.5, 0.0], &Device::Cpu).unwrap();
     let grads = (v.as_tensor() * &c).unwrap().sum_all().unwrap().backward().unwrap();
     assert!(
-        matches!(opt.step(&grads).unwrap(), StepOutcome::Applied { grad_norm } if (grad_norm - 4.25f64.sqrt()).abs() < 1e-6)
+        matches!(opt.step(&grads).unwrap(), OptimStep::Applied { grad_norm } if (grad_norm - 4.25f64.sqrt()).abs() < 1e-6)
     );
     let x: Vec<f32> = v.to_vec1().unwrap();
     assert!((x[0] - 0.9).abs() < 1e-6 && (x[1] + 1.9).abs() < 1e-6 && (x[2] - 3.0).abs() < 1e-6, "{x:?}");
@@ -332,7 +332,7 @@ fn adamw_first_step_is_lr_times_sign_and_nonfinite_gradients_change_nothing() {
         .unwrap()
         .backward()
         .unwrap();
-    assert_eq!(opt.step(&bad).unwrap(), StepOutcome::SkippedNonFinite);
+    assert_eq!(opt.step(&bad).unwrap(), OptimStep::SkippedNonFinite);
     assert_eq!(v.to_vec1::<f32>().unwrap(), x);
     assert_eq!(opt.steps(), 1);
 }
@@ -351,7 +351,7 @@ fn gradient_clipping_scales_the_global_norm() {
         .unwrap()
         .backward()
         .unwrap();
-    assert_eq!(opt.step(&grads).unwrap(), StepOutcome::Applied { grad_norm: 50.0 });
+    assert_eq!(opt.step(&grads).unwrap(), OptimStep::Applied { grad_norm: 50.0 });
     assert_eq!(v.to_vec1::<f32>().unwrap(), vec![-1.0, -1.0]);
     let clipped = grads.get(&v).unwrap();
     assert_eq!(clipped.to_vec1::<f32>().unwrap(), vec![30.0, 40.0], "the caller's gradients are not modified");

@@ -17,6 +17,8 @@
 //!   generator, reseeded from the seed given to [`Policy::begin`] (stream
 //!   [`NOISE_STREAM`] of that seed; the simulator uses the seed's default stream).
 
+#![warn(missing_docs)]
+
 use candle_core::{Device, Tensor};
 use pednav_nets::{DsacNets, EncoderKind, NetsConfig, Obs, PolicyStream, heads::standard_normal};
 use pednav_sim::{Action, Policy, PolicyError, VecEnv};

@@ -21,7 +21,7 @@ fn pixel_cfg() -> NetsConfig {
 
 /// Environments without a renderer: the pixel policy gets its frames from the test.
 fn envs(m: usize) -> VecEnv {
-    let sim = SimConfig { obs_mode: ObsMode::StateDebug, ..SimConfig::default() };
+    let sim = SimConfig { obs_mode: ObsMode::State, ..SimConfig::default() };
     let world = Arc::new(SimWorld::new(Scene::reference(), sim).unwrap());
     let mut envs = VecEnv::new(world, m, BackendChoice::Auto).unwrap();
     let p = envs.world().scene.validation_points()[2];

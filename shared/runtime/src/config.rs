@@ -213,7 +213,7 @@ impl RunConfig {
                     );
                 }
             }
-            ObsMode::StateDebug => {
+            ObsMode::State => {
                 if self.dsac.random_shift != 0 {
                     return bad(
                         "dsac.random_shift",
@@ -333,7 +333,7 @@ impl RunConfig {
     pub fn frame_kind(&self) -> FrameKind {
         match self.sim.obs_mode {
             ObsMode::Pixels => FrameKind::Pixels { size: self.sim.image_size as usize },
-            ObsMode::StateDebug => FrameKind::State { dim: self.nets.state_dim },
+            ObsMode::State => FrameKind::State { dim: self.nets.state_dim },
         }
     }
 
@@ -341,7 +341,7 @@ impl RunConfig {
     pub fn observation_bytes(&self) -> usize {
         match self.sim.obs_mode {
             ObsMode::Pixels => (self.sim.image_size * self.sim.image_size) as usize,
-            ObsMode::StateDebug => crate::messages::state_payload::bytes(STATE_OBS_DIM),
+            ObsMode::State => crate::messages::state_payload::bytes(STATE_OBS_DIM),
         }
     }
 }
@@ -403,7 +403,7 @@ mod tests {
         assert!(cfg.validate("x").unwrap_err().to_string().contains("/nonexistent/scene.toml"));
         // A rule only the learner's replay knew: state observations have no history.
         let mut cfg = RunConfig::default();
-        cfg.sim.obs_mode = ObsMode::StateDebug;
+        cfg.sim.obs_mode = ObsMode::State;
         cfg.nets.encoder = EncoderKind::Mlp;
         cfg.nets.state_dim = STATE_OBS_DIM;
         cfg.nets.history = 1;

@@ -35,6 +35,14 @@ pub enum RuntimeError {
         /// What happened.
         message: String,
     },
+    /// A file could not be written (the disk may be full).
+    #[error("{path}: {source}")]
+    Write {
+        /// The file.
+        path: PathBuf,
+        /// The operating system's error.
+        source: std::io::Error,
+    },
     /// An iceoryx2 operation failed.
     #[error("iceoryx2: {0}")]
     Ipc(String),
@@ -50,6 +58,11 @@ pub enum RuntimeError {
 pub type Result<T> = std::result::Result<T, RuntimeError>;
 
 impl RuntimeError {
+    /// Did a write fail because the disk (or the quota) is full?
+    pub fn is_disk_full(&self) -> bool {
+        matches!(self, RuntimeError::Write { source, .. } if crate::generations::is_disk_full(source))
+    }
+
     pub(crate) fn file(path: impl Into<PathBuf>, message: impl std::fmt::Display) -> RuntimeError {
         RuntimeError::File { path: path.into(), message: message.to_string() }
     }

@@ -9,29 +9,37 @@
 //! - [`memory`]: the memory a run needs, estimated and checked against the machine's
 //!   before anything starts;
 //! - [`rundir`]: the run directory layout (resume, never overwrite);
+//! - [`generations`]: two-generation atomic saves (checkpoints, curriculum state)
+//!   that survive a kill or a full disk at any step;
 //! - [`metrics`]: CSV + TensorBoard scalars;
 //! - [`weights`]: the flat weights message;
-//! - [`signal`]: Ctrl-C / SIGTERM as a flag.
+//! - [`signal`]: Ctrl-C / SIGTERM as a flag;
+//! - [`stats`]: the stats files each process writes and the soak and tests read;
+//! - [`write_health`]: writes that failed (a full disk), logged once per interval and
+//!   reported in the heartbeat while the process goes on.
 
 #![warn(missing_docs)]
 
 pub mod channels;
 pub mod config;
 pub mod error;
+pub mod generations;
 pub mod ipc;
 pub mod memory;
 pub mod messages;
 pub mod metrics;
 pub mod rundir;
 pub mod signal;
+pub mod stats;
 pub mod weights;
+pub mod write_health;
 
 pub use config::{ActorPolicy, RunConfig, RuntimeConfig};
 pub use error::{Result, RuntimeError};
 pub use ipc::{Ipc, run_prefix};
 pub use memory::{MemoryEstimate, MemoryPlan};
-pub use metrics::{Metrics, TbWriter};
-pub use rundir::RunDir;
+pub use metrics::{AppendFile, Metrics, MetricsFailure, TbWriter};
+pub use rundir::{RestartRecord, RunDir};
 pub use signal::StopFlag;
 
 /// Set up `tracing` for a process: human-readable lines on stderr (the launcher

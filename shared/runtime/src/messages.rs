@@ -53,6 +53,7 @@ pub mod state_payload {
             let state = [1.5f32, -0.0, f32::MIN_POSITIVE, 3.0e7];
             let mut buf = vec![std::mem::MaybeUninit::new(0u8); super::bytes(state.len())];
             super::encode_state(&state, &mut buf);
+            // SAFETY: encode_state initialised every byte of `buf` (and it started initialised).
             let bytes: Vec<u8> = buf.iter().map(|b| unsafe { b.assume_init() }).collect();
             let back = super::decode_state(&bytes);
             assert_eq!(back.iter().map(|v| v.to_bits()).collect::<Vec<_>>(), state.map(f32::to_bits).to_vec());
@@ -228,8 +229,69 @@ pub struct Heartbeat {
     pub updates: u64,
     /// Weights version in use (actor) or published (learner).
     pub version: u64,
+    /// The learner's last checkpoint that reached the disk (its update count), or the
+    /// curriculum service's last saved state (episodes reported at that save).
+    pub last_good: u64,
     /// Mean discounted return of recent episodes.
     pub recent_return: f32,
     /// Steps per second over the last interval.
     pub rate: f32,
+    /// Writes the process could not make at its last attempt.
+    pub faults: Faults,
+}
+
+/// Writes a process could not make (a full disk, a folder made read-only), as bits:
+/// it keeps its work in memory, says so in its log once per interval, retries at the
+/// next interval, and its heartbeat carries them to the launcher's progress line.
+#[repr(C)]
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, ZeroCopySend)]
+pub struct Faults(pub u32);
+
+impl Faults {
+    /// No fault.
+    pub const NONE: Faults = Faults(0);
+    /// The last checkpoint (learner) could not be written.
+    pub const CHECKPOINT: Faults = Faults(1);
+    /// The last saved state (curriculum service) could not be written.
+    pub const STATE: Faults = Faults(2);
+    /// Metrics rows (CSV, TensorBoard) wait in memory for the disk.
+    pub const METRICS: Faults = Faults(4);
+    /// The failure is a full disk (or quota).
+    pub const DISK_FULL: Faults = Faults(8);
+
+    /// Whether every bit of `other` is set.
+    pub fn contains(self, other: Faults) -> bool {
+        self.0 & other.0 == other.0 && other.0 != 0
+    }
+
+    /// These faults and `other`'s.
+    #[must_use]
+    pub fn with(self, other: Faults) -> Faults {
+        Faults(self.0 | other.0)
+    }
+
+    /// Whether any fault is set.
+    pub fn any(self) -> bool {
+        self.0 != 0
+    }
+
+    /// What the progress line says, e.g. `checkpoint FAILED: disk full, last good at
+    /// update 1200`; `last_good` is the heartbeat's field, `unit` what it counts.
+    pub fn describe(self, last_good: u64, unit: &str) -> Option<String> {
+        if !self.any() {
+            return None;
+        }
+        let why = if self.contains(Faults::DISK_FULL) { "disk full" } else { "cannot write" };
+        let mut parts = Vec::new();
+        if self.contains(Faults::CHECKPOINT) {
+            parts.push(format!("checkpoint FAILED: {why}, last good at {unit} {last_good}"));
+        }
+        if self.contains(Faults::STATE) {
+            parts.push(format!("curriculum state FAILED: {why}, last saved at {unit} {last_good}"));
+        }
+        if self.contains(Faults::METRICS) {
+            parts.push(format!("metrics waiting in memory: {why}"));
+        }
+        Some(parts.join("; "))
+    }
 }

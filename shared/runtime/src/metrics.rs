@@ -6,9 +6,14 @@
 //! TensorBoard file is a TFRecord stream of `Event` protos (wall time, step,
 //! `simple_value` summaries), each record framed by masked CRC-32C checksums as
 //! TensorBoard's reader expects; a resumed process starts a new event file.
+//!
+//! A write that fails (a full disk) loses nothing and stops nothing: the row (or
+//! record) stays in memory, whatever part of it reached the file is cut off again,
+//! and every later call first retries what waits, in order — so once space is freed
+//! the files hold every row, whole. [`Metrics::failing`] says what is waiting and why.
 
 use std::fs::{File, OpenOptions};
-use std::io::{BufRead, BufReader, Write};
+use std::io::{BufRead, BufReader, Seek, Write};
 use std::path::{Path, PathBuf};
 use std::time::{SystemTime, UNIX_EPOCH};
 
@@ -16,10 +21,89 @@ use crate::error::{Result, RuntimeError};
 
 /// CSV + TensorBoard writer for one process.
 pub struct Metrics {
-    csv: File,
-    csv_path: PathBuf,
+    csv: AppendFile,
     columns: Vec<String>,
     tb: TbWriter,
+}
+
+/// A file written by whole records (lines of a CSV, TensorBoard records): a record
+/// that cannot be written whole stays in memory (the part that reached the file cut
+/// off again) and is retried first at the next write, so a full disk loses nothing
+/// and the file never holds half a record.
+pub struct AppendFile {
+    file: File,
+    path: PathBuf,
+    waiting: std::collections::VecDeque<Vec<u8>>,
+    error: Option<std::io::Error>,
+    /// Writes still to fail as a full disk would, half a record written (tests).
+    inject: usize,
+}
+
+impl AppendFile {
+    fn new(file: File, path: PathBuf) -> AppendFile {
+        AppendFile { file, path, waiting: Default::default(), error: None, inject: 0 }
+    }
+
+    /// Open `path` for appending (created when missing).
+    pub fn open(path: &Path) -> Result<AppendFile> {
+        let file = OpenOptions::new().create(true).append(true).open(path).map_err(|e| RuntimeError::file(path, e))?;
+        Ok(AppendFile::new(file, path.to_path_buf()))
+    }
+
+    /// When the last write failed: the file, the records waiting and the error.
+    pub fn failure(&self) -> Option<MetricsFailure<'_>> {
+        self.failing().map(|(waiting, error)| MetricsFailure { path: &self.path, waiting, error })
+    }
+
+    fn write_record(&mut self, record: &[u8]) -> std::io::Result<()> {
+        if self.inject > 0 {
+            self.inject -= 1;
+            self.file.write_all(&record[..record.len() / 2])?;
+            return Err(std::io::Error::from(std::io::ErrorKind::StorageFull));
+        }
+        self.file.write_all(record)?;
+        self.file.flush()
+    }
+
+    /// Queue `record` and write everything queued, in order, until a write fails.
+    pub fn append(&mut self, record: Vec<u8>) {
+        self.waiting.push_back(record);
+        while let Some(next) = self.waiting.front().cloned() {
+            let at = self.file.metadata().map(|m| m.len()).ok();
+            match self.write_record(&next) {
+                Ok(()) => {
+                    self.waiting.pop_front();
+                    self.error = None;
+                }
+                Err(e) => {
+                    // Cut the partial record off and write the next try where it began
+                    // (a file not opened for appending keeps its cursor past the cut).
+                    if let Some(len) = at {
+                        let _ = self.file.set_len(len);
+                        let _ = self.file.seek(std::io::SeekFrom::Start(len));
+                    }
+                    self.error = Some(e);
+                    return;
+                }
+            }
+        }
+    }
+
+    /// Records waiting and the error that keeps them, when a write failed.
+    fn failing(&self) -> Option<(usize, &std::io::Error)> {
+        self.error.as_ref().map(|e| (self.waiting.len(), e))
+    }
+}
+
+/// Why rows of a [`Metrics`] (or an [`AppendFile`]) are waiting in memory.
+#[derive(Debug)]
+pub struct MetricsFailure<'a> {
+    /// The file that cannot be written.
+    pub path: &'a Path,
+    /// Records waiting for it.
+    pub waiting: usize,
+    /// The last write's error.
+    pub error: &'a std::io::Error,
 }
 
 impl Metrics {
@@ -42,11 +126,26 @@ impl Metrics {
             .open(&csv_path)
             .map_err(|e| RuntimeError::file(&csv_path, e))?;
         let tb = TbWriter::create(&tb_dir.join(name))?;
-        Ok(Metrics { csv, csv_path, columns, tb })
+        Ok(Metrics { csv: AppendFile::new(csv, csv_path), columns, tb })
+    }
+
+    /// Make the next `n` writes of each file fail as a full disk does, after writing
+    /// half their record (tests of the recovery).
+    #[doc(hidden)]
+    pub fn inject_disk_full(&mut self, n: usize) {
+        self.csv.inject = n;
+        self.tb.file.inject = n;
+    }
+
+    /// When a write failed: the file, the records waiting in memory and the error
+    /// (the CSV's first, then the TensorBoard file's); `None` when all is written.
+    pub fn failing(&self) -> Option<MetricsFailure<'_>> {
+        self.csv.failure().or_else(|| self.tb.file.failure())
     }
 
     /// Write one row: `step` plus named values. The first row fixes the columns;
-    /// later rows must name the same values (missing ones are left empty).
+    /// later rows must name the same values (missing ones are left empty). A row the
+    /// disk does not take waits in memory ([`Metrics::failing`]); it is not an error.
     pub fn log(&mut self, step: u64, values: &[(&str, f64)]) -> Result<()> {
         let values: Vec<(&str, Option<f64>)> = values.iter().map(|&(k, v)| (k, Some(v))).collect();
         self.log_optional(step, &values)
@@ -59,7 +158,7 @@ impl Metrics {
         if self.columns.is_empty() {
             self.columns =
                 std::iter::once("step".to_string()).chain(values.iter().map(|(k, _)| k.to_string())).collect();
-            writeln!(self.csv, "{}", self.columns.join(",")).map_err(|e| RuntimeError::file(&self.csv_path, e))?;
+            self.csv.append(format!("{}\n", self.columns.join(",")).into_bytes());
         }
         let mut row = Vec::with_capacity(self.columns.len());
         for c in &self.columns {
@@ -70,17 +169,17 @@ impl Metrics {
                 row.push(value.map(|v| format!("{v}")).unwrap_or_default());
             }
         }
-        writeln!(self.csv, "{}", row.join(",")).map_err(|e| RuntimeError::file(&self.csv_path, e))?;
-        self.csv.flush().map_err(|e| RuntimeError::file(&self.csv_path, e))?;
+        self.csv.append(format!("{}\n", row.join(",")).into_bytes());
         let present: Vec<(&str, f64)> = values.iter().filter_map(|&(k, v)| Some((k, v?))).collect();
-        self.tb.scalars(step, &present)
+        self.tb.scalars(step, &present);
+        Ok(())
     }
 }
 
-/// A TensorBoard event-file writer (scalars only).
+/// A TensorBoard event-file writer (scalars only); records the disk does not take
+/// wait in memory, as the CSV's rows do.
 pub struct TbWriter {
-    file: File,
-    path: PathBuf,
+    file: AppendFile,
 }
 
 fn masked_crc(data: &[u8]) -> u32 {
@@ -148,24 +247,19 @@ impl TbWriter {
         let host = std::fs::read_to_string("/etc/hostname").map(|s| s.trim().to_string()).unwrap_or("pednav".into());
         let path = dir.join(format!("events.out.tfevents.{}.{host}.{}", wall_time() as u64, std::process::id()));
         let file = File::create(&path).map_err(|e| RuntimeError::file(&path, e))?;
-        let mut w = TbWriter { file, path };
-        w.write(&event(0, Some("brain.Event:2"), &[]))?;
+        let mut w = TbWriter { file: AppendFile::new(file, path) };
+        w.file.append(tfrecord(&event(0, Some("brain.Event:2"), &[])));
         Ok(w)
     }
 
-    fn write(&mut self, data: &[u8]) -> Result<()> {
-        self.file.write_all(&tfrecord(data)).map_err(|e| RuntimeError::file(&self.path, e))?;
-        self.file.flush().map_err(|e| RuntimeError::file(&self.path, e))
-    }
-
-    /// Write scalars at `step`.
-    pub fn scalars(&mut self, step: u64, values: &[(&str, f64)]) -> Result<()> {
-        self.write(&event(step, None, values))
+    /// Write scalars at `step` (waiting in memory when the disk does not take them).
+    pub fn scalars(&mut self, step: u64, values: &[(&str, f64)]) {
+        self.file.append(tfrecord(&event(step, None, values)));
     }
 
     /// The event file.
     pub fn path(&self) -> &Path {
-        &self.path
+        &self.file.path
     }
 }
 
@@ -192,6 +286,38 @@ mod tests {
         // Summary → Value → tag "loss", simple_value 0.5.
         let needle = [&[0x0a, 4][..], b"loss", &[0x15], &0.5f32.to_le_bytes()].concat();
         assert!(data.windows(needle.len()).any(|w| w == needle), "{data:?}");
+    }
+
+    #[test]
+    fn rows_the_disk_refuses_wait_in_memory_and_arrive_whole_once_it_takes_them() {
+        let dir = std::env::temp_dir().join(format!("pednav-metrics-full-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        std::fs::create_dir_all(&dir).unwrap();
+        let mut m = Metrics::open(&dir, &dir.join("tb"), "x").unwrap();
+        m.log(1, &[("a", 1.0)]).unwrap();
+        assert!(m.failing().is_none());
+        m.inject_disk_full(2);
+        m.log(2, &[("a", 2.0)]).unwrap();
+        m.log(3, &[("a", 3.0)]).unwrap();
+        let f = m.failing().expect("rows are waiting");
+        assert_eq!((f.waiting, f.path), (2, dir.join("x.csv").as_path()));
+        assert!(crate::generations::is_disk_full(f.error), "{}", f.error);
+        // Half-written rows were cut off again: the file holds whole rows only.
+        assert_eq!(std::fs::read_to_string(dir.join("x.csv")).unwrap(), "step,a\n1,1\n");
+        // The disk takes writes again: everything waiting arrives, in order.
+        m.log(4, &[("a", 4.0)]).unwrap();
+        assert!(m.failing().is_none());
+        assert_eq!(std::fs::read_to_string(dir.join("x.csv")).unwrap(), "step,a\n1,1\n2,2\n3,3\n4,4\n");
+        // TensorBoard too: its file is a whole sequence of records (header + 4 rows).
+        let tb = std::fs::read(m.tb.path()).unwrap();
+        let (mut at, mut records) = (0, 0);
+        while at < tb.len() {
+            let len = u64::from_le_bytes(tb[at..at + 8].try_into().unwrap()) as usize;
+            at += 12 + len + 4;
+            records += 1;
+        }
+        assert_eq!((at, records), (tb.len(), 5));
+        let _ = std::fs::remove_dir_all(&dir);
     }
 
     #[test]

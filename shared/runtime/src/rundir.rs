@@ -118,14 +118,55 @@ impl RunDir {
     pub fn stats(&self) -> PathBuf {
         self.root.join("stats")
     }
+    /// `restarts.jsonl`: one [`RestartRecord`] per restart the launcher made.
+    pub fn restarts_log(&self) -> PathBuf {
+        self.root.join("restarts.jsonl")
+    }
 
-    /// Write a JSON stats file atomically (`stats/<name>.json`).
-    pub fn write_stats(&self, name: &str, value: &serde_json::Value) -> Result<()> {
+    /// Append a restart to [`RunDir::restarts_log`] (one JSON object per line).
+    pub fn append_restart(&self, record: &RestartRecord) -> Result<()> {
+        use std::io::Write;
+        let path = self.restarts_log();
+        let line = serde_json::to_string(record).expect("a restart record serialises") + "\n";
+        std::fs::OpenOptions::new()
+            .create(true)
+            .append(true)
+            .open(&path)
+            .and_then(|mut f| f.write_all(line.as_bytes()))
+            .map_err(|source| RuntimeError::Write { path, source })
+    }
+
+    /// Every restart recorded so far, in order (an unreadable line is skipped with a warning).
+    pub fn read_restarts(&self) -> Vec<RestartRecord> {
+        let text = std::fs::read_to_string(self.restarts_log()).unwrap_or_default();
+        text.lines()
+            .filter(|l| !l.trim().is_empty())
+            .filter_map(|l| {
+                serde_json::from_str(l)
+                    .map_err(|e| tracing::warn!("{}: unreadable restart record: {e}", self.restarts_log().display()))
+                    .ok()
+            })
+            .collect()
+    }
+
+    /// Write a stats file atomically (`stats/<name>.json`; the types are [`crate::stats`]).
+    pub fn write_stats(&self, name: &str, value: &impl serde::Serialize) -> Result<()> {
         let path = self.stats().join(format!("{name}.json"));
         let tmp = path.with_extension("json.tmp");
-        let text = serde_json::to_string_pretty(value).expect("JSON values serialise");
-        std::fs::write(&tmp, text).map_err(|e| RuntimeError::file(&tmp, e))?;
-        std::fs::rename(&tmp, &path).map_err(|e| RuntimeError::file(&path, e))
+        let text = serde_json::to_string_pretty(value).expect("stats serialise");
+        let write = |path: &Path, source| RuntimeError::Write { path: path.to_path_buf(), source };
+        std::fs::write(&tmp, text).map_err(|e| write(&tmp, e))?;
+        std::fs::rename(&tmp, &path).map_err(|e| write(&path, e))
+    }
+
+    /// Read a stats file (`stats/<name>.json`): `None` when it does not exist (yet); an
+    /// error naming the file when it does not hold a `T` (another writer's field names).
+    pub fn read_stats<T: serde::de::DeserializeOwned>(&self, name: &str) -> Result<Option<T>> {
+        let path = self.stats().join(format!("{name}.json"));
+        let Ok(text) = std::fs::read_to_string(&path) else { return Ok(None) };
+        serde_json::from_str(&text)
+            .map(Some)
+            .map_err(|e| RuntimeError::file(&path, format!("not the stats expected: {e}")))
     }
 
     /// Next incarnation number of process `name` (counts starts; kept in `stats/`).
@@ -134,5 +175,53 @@ impl RunDir {
         let n = std::fs::read_to_string(&path).ok().and_then(|s| s.trim().parse::<u32>().ok()).unwrap_or(0) + 1;
         std::fs::write(&path, n.to_string()).map_err(|e| RuntimeError::file(&path, e))?;
         Ok(n)
+    }
+}
+
+/// One restart the launcher made, as `restarts.jsonl` records it (written by the
+/// supervisor, read by the soak and by people): the contract between them is this type.
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RestartRecord {
+    /// When the death was seen, seconds since the Unix epoch.
+    pub unix_time: f64,
+    /// The supervisor's process name (`learner`, `curriculum`, `actor-K`).
+    pub process: String,
+    /// How it ended (`exit status: 1`, `signal: 9 (SIGKILL)`, `hung: …`).
+    pub status: String,
+    /// The error it died of, one line (its message and root cause), from its log.
+    pub cause: String,
+    /// The process's restart count after this one.
+    pub restart: u32,
+    /// Seconds waited before starting it again (back-off on a repeated error).
+    pub delay_secs: f64,
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The supervisor writes restarts and the soak reads them through one type: a
+    /// field renamed on one side cannot go unnoticed.
+    #[test]
+    fn restart_records_read_back_as_written() {
+        let root = std::env::temp_dir().join(format!("pednav-restarts-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&root);
+        std::fs::create_dir_all(&root).unwrap();
+        let dir = RunDir::new(&root);
+        assert!(dir.read_restarts().is_empty());
+        let a = RestartRecord {
+            unix_time: 1.5,
+            process: "learner".into(),
+            status: "exit status: 1".into(),
+            cause: "the final checkpoint could not be written — No space left on device (os error 28)".into(),
+            restart: 1,
+            delay_secs: 0.0,
+        };
+        let b = RestartRecord { process: "actor-1".into(), restart: 2, delay_secs: 4.0, ..a.clone() };
+        dir.append_restart(&a).unwrap();
+        dir.append_restart(&b).unwrap();
+        assert_eq!(dir.read_restarts(), vec![a, b]);
+        let _ = std::fs::remove_dir_all(&root);
     }
 }

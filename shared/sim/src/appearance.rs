@@ -14,7 +14,7 @@
 use serde::{Deserialize, Serialize};
 
 use crate::error::Result;
-use crate::scene::{Area, MAX_HEIGHT, Polygon, Rect, invalid, resolve_rect};
+use crate::geometry::{Area, MAX_HEIGHT, Polygon, Rect, invalid, resolve_rect};
 
 /// Lowest base of an overhead detail, in metres: above the default pedestrian
 /// (1.8 m) with room to spare, like the 2.3 m of a tree's crown.

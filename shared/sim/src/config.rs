@@ -1,4 +1,4 @@
-//! Simulator settings (DESIGN §3) with the paper's defaults.
+//! Simulator settings (docs/design.md §3) with the paper's defaults.
 
 use serde::{Deserialize, Serialize};
 
@@ -15,13 +15,17 @@ pub enum ObsMode {
     /// First-person greyscale frames (the paper's setting; the default).
     #[default]
     Pixels,
-    /// State observation for fast algorithm tests and debugging only: the goal's
-    /// position in the body frame, heading, head yaw and the map rewards around
-    /// the agent (see [`crate::state_obs`]). Not the paper's task.
-    StateDebug,
+    /// The simulator's state instead of pixels: the goal's position in the body
+    /// frame, heading, head yaw and the map rewards around the agent (see
+    /// [`crate::state_obs`]) — a privileged observation, for algorithm tests, the
+    /// state preset and comparisons; not the paper's task. Written `"state"`
+    /// (`"state_debug"`, its first name, still reads).
+    #[serde(alias = "state_debug")]
+    #[value(alias = "state-debug")]
+    State,
 }
 
-/// Settings of the pedestrian simulator. Defaults are the paper's (§IV) and DESIGN §3.
+/// Settings of the pedestrian simulator. Defaults are the paper's (§IV) and docs/design.md §3.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct SimConfig {
@@ -35,7 +39,8 @@ pub struct SimConfig {
     /// Top yaw rate in degrees/s; a₁ ∈ [−1, 1] maps to [−max_yaw_rate, max_yaw_rate]. Paper: 80.
     pub max_yaw_rate_deg: f32,
     /// Head-yaw range in degrees: a₂ ∈ [−1, 1] sets the head's yaw offset relative
-    /// to the body to a₂ · max_head_yaw (absolute offset, not a rate). DESIGN: 60.
+    /// to the body to a₂ · max_head_yaw (absolute offset, not a rate). Default 60: the
+    /// paper gives no range (docs/design.md §9).
     pub max_head_yaw_deg: f32,
     /// Capsule radius of the pedestrian in metres.
     pub agent_radius: f32,
@@ -120,5 +125,24 @@ impl SimConfig {
         check(self.fov_deg > 10.0 && self.fov_deg < 170.0, "fov_deg", self.fov_deg, "must lie in (10, 170) degrees")?;
         check((8..=1024).contains(&self.image_size), "image_size", self.image_size, "must lie in [8, 1024] pixels")?;
         Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_state_observation_reads_under_both_of_its_names() {
+        #[derive(Deserialize)]
+        struct Sim {
+            obs_mode: ObsMode,
+        }
+        for name in ["state", "state_debug"] {
+            let s: Sim = toml::from_str(&format!("obs_mode = \"{name}\"")).unwrap();
+            assert_eq!(s.obs_mode, ObsMode::State, "{name}");
+        }
+        let written = toml::to_string(&SimConfig { obs_mode: ObsMode::State, ..SimConfig::default() }).unwrap();
+        assert!(written.contains("obs_mode = \"state\""), "{written}");
     }
 }

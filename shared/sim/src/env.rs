@@ -64,7 +64,7 @@ impl VecEnv {
                 &world.map,
                 RendererConfig::from_sim(&world.config, num_envs, backend),
             )?),
-            ObsMode::StateDebug => None,
+            ObsMode::State => None,
         };
         Ok(VecEnv {
             peds: vec![Pedestrian::default(); num_envs],
@@ -147,7 +147,7 @@ impl VecEnv {
         }
         let renderer = self.renderer.as_mut().ok_or(SimError::Config {
             field: "obs_mode",
-            value: "state_debug".into(),
+            value: "state".into(),
             message: "rendering needs obs_mode = \"pixels\"".into(),
         })?;
         Ok(renderer.render(&self.cameras)?)
@@ -233,7 +233,7 @@ impl PedestrianEnv {
     fn observe(&mut self) -> Result<Observation> {
         Ok(match self.inner.world.config.obs_mode {
             ObsMode::Pixels => Observation::Pixels(self.inner.render()?.frame(0)),
-            ObsMode::StateDebug => Observation::State(self.inner.state_obs(0)),
+            ObsMode::State => Observation::State(self.inner.state_obs(0)),
         })
     }
 }

@@ -1,6 +1,6 @@
 //! # pednav-sim — the built-in urban crossing simulator
 //!
-//! Replaces CARLA for pednav (DESIGN §3): a scene described as data
+//! Replaces CARLA for pednav (docs/design.md §3): a scene described as data
 //! ([`Scene`], the reference corner in `scenes/corner.toml`), the paper's reward
 //! r = r_m + r_v + r_c in one place ([`reward`]) and the reward map derived from
 //! it ([`RegionMap`]), a rapier3d kinematic pedestrian
@@ -22,6 +22,7 @@ pub mod config;
 pub mod draw;
 pub mod env;
 pub mod error;
+pub mod geometry;
 pub mod oracle;
 pub mod pedestrian;
 pub mod physics;

@@ -14,7 +14,7 @@ use rapier3d::prelude::*;
 
 use crate::scene::{Footprint, Scene};
 
-/// The agent's body (DESIGN §3: capsule ≈ 0.3 m × 1.8 m).
+/// The agent's body (docs/design.md §3: capsule r 0.3 m, height 1.8 m).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct AgentBody {
     /// Capsule radius in metres.

@@ -120,9 +120,8 @@ mod tests {
     use crate::{BackendChoice, ObsMode, Pose, Scene, SimConfig, SimWorld};
 
     fn envs(m: usize) -> VecEnv {
-        let world =
-            SimWorld::new(Scene::reference(), SimConfig { obs_mode: ObsMode::StateDebug, ..SimConfig::default() })
-                .expect("reference scene");
+        let world = SimWorld::new(Scene::reference(), SimConfig { obs_mode: ObsMode::State, ..SimConfig::default() })
+            .expect("reference scene");
         let mut envs = VecEnv::new(Arc::new(world), m, BackendChoice::Auto).expect("no renderer in state mode");
         let p = envs.world().scene.validation_points()[0];
         for e in 0..m {

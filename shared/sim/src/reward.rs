@@ -1,5 +1,5 @@
 //! The reward: what the pedestrian is paid for in one decision step (paper §IV,
-//! Fig. 1b; DESIGN §3). Every rule of the reward is here; the numbers are the
+//! Fig. 1b; docs/design.md §3). Every rule of the reward is here; the numbers are the
 //! scene's ([`Rewards`], the `[rewards]` table of the scene file).
 //!
 //! ```text

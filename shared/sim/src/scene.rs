@@ -22,6 +22,8 @@ pub use crate::appearance::{
 };
 use crate::appearance::{resolve_overhead, resolve_paving};
 use crate::error::{Result, SimError};
+pub use crate::geometry::{Area, MAX_HEIGHT, Polygon, Rect};
+use crate::geometry::{invalid, resolve_rect};
 pub use crate::region_kind::RegionKind;
 pub use crate::reward::Rewards;
 
@@ -30,9 +32,10 @@ pub use crate::reward::Rewards;
 pub const REFERENCE_SCENE_TOML: &str = include_str!("../scenes/corner.toml");
 
 /// The reference scene as it was before its corners were told apart: the same
-/// roads, regions, tasks and validation points, with look-alike corners (nearly
-/// four-fold symmetric from the pedestrian's eye). Kept to compare learning on the
-/// two and to re-evaluate results trained on it (`scene = "built-in:corner_plain"`).
+/// roads, regions, curriculum areas and validation points, with look-alike corners
+/// (nearly four-fold symmetric from the pedestrian's eye) and its original first
+/// task (facing the goal). Kept to reproduce and re-evaluate results trained on it
+/// (`scene = "built-in:corner_plain"`).
 pub const PLAIN_SCENE_TOML: &str = include_str!("../scenes/corner_plain.toml");
 
 /// How a config or a command line names a scene compiled into the binary:
@@ -52,10 +55,6 @@ pub fn is_built_in(path: &Path) -> bool {
 /// supports by default, and 8192² cells (64 Mi labels) is already 64 MiB per process.
 pub const MAX_MAP_CELLS: usize = 8192;
 
-/// Tallest wall or obstacle a scene may have, in metres (a 300-storey tower; a
-/// larger value is a typo that would only stretch the mesh and its depth range).
-pub const MAX_HEIGHT: f32 = 1000.0;
-
 /// Axis along which a pedestrian walks over a zebra crossing; the stripes
 /// alternate along it (each stripe is long across this axis).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
@@ -65,186 +64,6 @@ pub enum Axis {
     X,
     /// Walking direction along y.
     Y,
-}
-
-/// An axis-aligned rectangle `[x_min, y_min, x_max, y_max]` in metres.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
-pub struct Rect {
-    /// Lower-left corner.
-    pub min: [f32; 2],
-    /// Upper-right corner.
-    pub max: [f32; 2],
-}
-
-impl Rect {
-    /// Does the rectangle contain the point (closed on all sides)?
-    pub fn contains(&self, x: f32, y: f32) -> bool {
-        x >= self.min[0] && x <= self.max[0] && y >= self.min[1] && y <= self.max[1]
-    }
-    /// Width along x.
-    pub fn width(&self) -> f32 {
-        self.max[0] - self.min[0]
-    }
-    /// Height along y.
-    pub fn height(&self) -> f32 {
-        self.max[1] - self.min[1]
-    }
-    /// Do the two rectangles share at least a point?
-    pub fn intersects(&self, other: &Rect) -> bool {
-        self.min[0] <= other.max[0]
-            && other.min[0] <= self.max[0]
-            && self.min[1] <= other.max[1]
-            && other.min[1] <= self.max[1]
-    }
-    /// Does `self` lie inside `other` (boundaries included)?
-    pub fn within(&self, other: &Rect) -> bool {
-        other.contains(self.min[0], self.min[1]) && other.contains(self.max[0], self.max[1])
-    }
-    fn polygon(&self) -> Vec<[f32; 2]> {
-        vec![
-            [self.min[0], self.min[1]],
-            [self.max[0], self.min[1]],
-            [self.max[0], self.max[1]],
-            [self.min[0], self.max[1]],
-        ]
-    }
-}
-
-/// A simple polygon (any winding, not self-intersecting) in metres.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(transparent)]
-pub struct Polygon(pub Vec<[f32; 2]>);
-
-impl Polygon {
-    /// Even-odd point-in-polygon test.
-    pub fn contains(&self, x: f32, y: f32) -> bool {
-        let v = &self.0;
-        let mut inside = false;
-        let mut j = v.len() - 1;
-        for i in 0..v.len() {
-            let (xi, yi) = (v[i][0], v[i][1]);
-            let (xj, yj) = (v[j][0], v[j][1]);
-            if (yi > y) != (yj > y) && x < (xj - xi) * (y - yi) / (yj - yi) + xi {
-                inside = !inside;
-            }
-            j = i;
-        }
-        inside
-    }
-
-    /// Bounding box of the polygon.
-    pub fn bounds(&self) -> Rect {
-        let mut r = Rect { min: [f32::INFINITY; 2], max: [f32::NEG_INFINITY; 2] };
-        for p in &self.0 {
-            r.min[0] = r.min[0].min(p[0]);
-            r.min[1] = r.min[1].min(p[1]);
-            r.max[0] = r.max[0].max(p[0]);
-            r.max[1] = r.max[1].max(p[1]);
-        }
-        r
-    }
-
-    /// Area (shoelace formula), positive for either winding.
-    pub fn area(&self) -> f32 {
-        let v = &self.0;
-        let mut a = 0.0;
-        for i in 0..v.len() {
-            let j = (i + 1) % v.len();
-            a += v[i][0] * v[j][1] - v[j][0] * v[i][1];
-        }
-        (a * 0.5).abs()
-    }
-
-    /// The first pair of edges `(i, j)` that cross, if any (edge `i` runs from vertex
-    /// `i` to vertex `i + 1`). Edges sharing a vertex are not compared; two edges
-    /// cross when each one's end points lie strictly on opposite sides of the other.
-    pub fn crossing_edges(&self) -> Option<(usize, usize)> {
-        let v = &self.0;
-        let n = v.len();
-        let point = |k: usize| [f64::from(v[k % n][0]), f64::from(v[k % n][1])];
-        // −1, 0 or 1: which side of the line a→b the point c lies on (0: on it, so
-        // touching, collinear and zero-length edges never count as crossing).
-        let side = |a: [f64; 2], b: [f64; 2], c: [f64; 2]| {
-            let cross = (b[0] - a[0]) * (c[1] - a[1]) - (b[1] - a[1]) * (c[0] - a[0]);
-            f64::from(i8::from(cross > 0.0) - i8::from(cross < 0.0))
-        };
-        for i in 0..n {
-            // j > i + 1 and not the edge that closes the loop back onto vertex i.
-            for j in i + 2..n {
-                if i == 0 && j == n - 1 {
-                    continue;
-                }
-                let (a, b, c, d) = (point(i), point(i + 1), point(j), point(j + 1));
-                if side(a, b, c) * side(a, b, d) < 0.0 && side(c, d, a) * side(c, d, b) < 0.0 {
-                    return Some((i, j));
-                }
-            }
-        }
-        None
-    }
-}
-
-/// A shape on the ground plane given either as `rect = [x0, y0, x1, y1]` or as
-/// `polygon = [[x, y], ...]` in the scene file.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct Area {
-    /// Axis-aligned rectangle `[x_min, y_min, x_max, y_max]`.
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub rect: Option<[f32; 4]>,
-    /// Polygon vertices.
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub polygon: Option<Vec<[f32; 2]>>,
-}
-
-impl Area {
-    pub(crate) fn resolve(&self, field: &str, origin: &str) -> Result<Polygon> {
-        match (&self.rect, &self.polygon) {
-            (Some(r), None) => Ok(Polygon(resolve_rect(r, &format!("{field}.rect"), origin)?.polygon())),
-            (None, Some(p)) => {
-                let field = format!("{field}.polygon");
-                if p.len() < 3 {
-                    return Err(invalid(origin, &field, format!("needs at least 3 vertices, got {}", p.len())));
-                }
-                if let Some(k) = p.iter().position(|q| !(q[0].is_finite() && q[1].is_finite())) {
-                    return Err(invalid(origin, &field, format!("vertex {k} {:?} is not finite", p[k])));
-                }
-                let poly = Polygon(p.clone());
-                let b = poly.bounds();
-                if !(b.width().is_finite() && b.height().is_finite()) {
-                    return Err(invalid(origin, &field, "is wider than a 32-bit float can measure".into()));
-                }
-                let area = poly.area();
-                if area.is_nan() || area <= 1e-6 {
-                    return Err(invalid(origin, &field, "has zero area".into()));
-                }
-                if let Some((i, j)) = poly.crossing_edges() {
-                    return Err(invalid(
-                        origin,
-                        &field,
-                        format!("edges {i} and {j} cross: give the vertices in order around a simple polygon"),
-                    ));
-                }
-                Ok(poly)
-            }
-            _ => Err(invalid(origin, field, "give exactly one of `rect` or `polygon`".into())),
-        }
-    }
-}
-
-/// A `[x_min, y_min, x_max, y_max]` rectangle from a scene file: finite, non-empty.
-pub(crate) fn resolve_rect(r: &[f32; 4], field: &str, origin: &str) -> Result<Rect> {
-    if !r.iter().all(|v| v.is_finite()) {
-        return Err(invalid(origin, field, format!("{r:?} is not finite")));
-    }
-    let rect = Rect { min: [r[0], r[1]], max: [r[2], r[3]] };
-    if !(rect.width() > 0.0 && rect.height() > 0.0) {
-        return Err(invalid(origin, field, format!("{r:?} must satisfy x_min < x_max and y_min < y_max")));
-    }
-    if !(rect.width().is_finite() && rect.height().is_finite()) {
-        return Err(invalid(origin, field, format!("{r:?} is wider than a 32-bit float can measure")));
-    }
-    Ok(rect)
 }
 
 /// A ground region as written in the scene file.
@@ -545,10 +364,6 @@ fn check_height(h: f32, field: &str, origin: &str) -> Result<()> {
         return Err(invalid(origin, field, format!("{h} must lie in (0, {MAX_HEIGHT}] metres")));
     }
     Ok(())
-}
-
-pub(crate) fn invalid(origin: &str, field: &str, message: String) -> SimError {
-    SimError::SceneInvalid { origin: origin.to_string(), field: field.to_string(), message }
 }
 
 impl Scene {
@@ -929,15 +744,6 @@ mod tests {
     }
 
     #[test]
-    fn polygon_contains_matches_rect() {
-        let p = Polygon(Rect { min: [0.0, 0.0], max: [2.0, 1.0] }.polygon());
-        assert!(p.contains(1.0, 0.5));
-        assert!(!p.contains(2.5, 0.5));
-        assert!(!p.contains(1.0, -0.1));
-        assert!((p.area() - 2.0).abs() < 1e-6);
-    }
-
-    #[test]
     fn bad_scene_names_the_field() {
         let text = REFERENCE_SCENE_TOML.replace("cell_size = 0.05", "cell_size = -1.0");
         let err = Scene::from_toml_str(&text, "test").unwrap_err().to_string();
@@ -1009,9 +815,9 @@ mod tests {
         }
     }
 
-    /// The recognisable reference scene changes only looks: the task — regions,
-    /// rewards, starts, curriculum areas, validation points — is the first version's,
-    /// so results on the two stay comparable.
+    /// The recognisable reference scene changes only looks (and the first task's yaw,
+    /// calibrated): regions, rewards, curriculum areas, validation points are the
+    /// first version's, so results on the two stay comparable.
     #[test]
     fn the_reference_scene_poses_the_plain_scenes_task() {
         let (new, plain) = (Scene::reference().spec, Scene::built_in("corner_plain").unwrap().spec);
@@ -1020,7 +826,10 @@ mod tests {
         assert_eq!(new.rewards, plain.rewards);
         assert_eq!(new.regions, plain.regions);
         assert_eq!(new.markings, plain.markings);
-        assert_eq!(new.first_task, plain.first_task);
+        // The first task stands where it stood; the reference scene's faces away from
+        // the goal (the calibrated gate), the plain scene keeps its original yaw.
+        assert_eq!((new.first_task.x, new.first_task.y), (plain.first_task.x, plain.first_task.y));
+        assert_eq!((new.first_task.yaw_deg, plain.first_task.yaw_deg), (180.0, 0.0));
         assert_eq!(new.fixed_start, plain.fixed_start);
         assert_eq!(new.curriculum_region, plain.curriculum_region);
         assert_eq!(new.enlarged_curriculum_region, plain.enlarged_curriculum_region);
@@ -1035,23 +844,6 @@ mod tests {
         assert_eq!(s.origin, "built-in:corner_plain");
         let err = Scene::load(Path::new("built-in:nowhere")).unwrap_err().to_string();
         assert!(err.contains("built-in:corner") && err.contains("built-in:corner_plain"), "{err}");
-    }
-
-    #[test]
-    fn crossing_edges_finds_a_bow_tie_only() {
-        let bow_tie = Polygon(vec![[0.0, 0.0], [4.0, 2.0], [4.0, 0.0], [0.0, 4.0]]);
-        assert_eq!(bow_tie.crossing_edges(), Some((0, 2)));
-        // Simple polygons, convex and not, with collinear and touching-free edges.
-        for p in [
-            vec![[0.0, 0.0], [4.0, 0.0], [4.0, 4.0], [0.0, 4.0]],
-            vec![[0.0, 0.0], [4.0, 0.0], [2.0, 1.0], [4.0, 4.0], [0.0, 4.0]],
-            vec![[0.0, 0.0], [1.0, 0.0], [2.0, 0.0], [2.0, 1.0]],
-            vec![[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]],
-            // Clockwise, the first vertex repeated at the end (a zero-length edge).
-            vec![[0.0, 0.0], [0.0, 4.0], [4.0, 4.0], [4.0, 0.0], [0.0, 0.0]],
-        ] {
-            assert_eq!(Polygon(p.clone()).crossing_edges(), None, "{p:?}");
-        }
     }
 
     #[test]

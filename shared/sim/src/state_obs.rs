@@ -1,6 +1,6 @@
 //! The state-debug observation: a small vector for fast algorithm tests and
 //! debugging. It is **not** the paper's task (which is pixels only) and never the
-//! default; configs must ask for `obs_mode = "state_debug"`.
+//! default; configs must ask for `obs_mode = "state"`.
 //!
 //! Layout (`STATE_OBS_DIM` = 22 floats):
 //! - `[0..2]`  goal centre in the body frame (forward, left), divided by 20 m;

@@ -161,7 +161,7 @@ fn same_seed_gives_identical_frames_and_rewards() {
 
 #[test]
 fn pedestrian_env_follows_the_gymnasium_shape() {
-    let w = world(SimConfig { obs_mode: ObsMode::StateDebug, ..SimConfig::default() });
+    let w = world(SimConfig { obs_mode: ObsMode::State, ..SimConfig::default() });
     let mut env = PedestrianEnv::new(w.clone(), backend()).unwrap();
     let (obs, info) = env.reset(Pose::from_degrees(12.0, 7.0, 0.0), 0).unwrap();
     let Observation::State(o) = obs else { panic!("state mode") };

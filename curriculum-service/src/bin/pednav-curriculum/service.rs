@@ -5,49 +5,50 @@
 //!
 //! Invariant: the saved state (`checkpoints/curriculum.json`, and a snapshot every
 //! 500 episodes) holds the curriculum, the next task id, the per-category counts and
-//! the decision steps together, so a restart resumes all of them.
+//! the decision steps together, so a restart resumes all of them. A save that fails
+//! (a full disk) leaves the last good state on disk; the service keeps serving from
+//! memory, says so once per interval, and saves again after the next episodes.
 
 use std::collections::{BTreeMap, VecDeque};
 use std::path::Path;
 use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result};
-use pednav_curriculum::{Category, Curriculum, EpisodeOutcome, Fit, ServiceState};
+use pednav_curriculum::{Category, Curriculum, CurriculumError, EpisodeOutcome, Fit, ServiceState};
 use pednav_runtime::ipc::{EpisodeSubscriber, HeartbeatPublisher, TaskServer};
-use pednav_runtime::messages::{EpisodeHeader, Heartbeat, TaskResponse, process_kind};
-use pednav_runtime::{Ipc, Metrics, RunConfig, RunDir, StopFlag, run_prefix};
+use pednav_runtime::messages::{EpisodeHeader, Faults, Heartbeat, TaskResponse, process_kind};
+use pednav_runtime::stats::{CurriculumStats, GateOpened};
+use pednav_runtime::write_health::WriteHealth;
+use pednav_runtime::{AppendFile, Ipc, Metrics, RunConfig, RunDir, StopFlag, run_prefix};
 use pednav_sim::{Pose, Scene};
 
 /// Reported episodes between two saved snapshots of the curriculum state
 /// (`checkpoints/curriculum-snapshots/`, what `pednav-plot curriculum` draws over time).
 const SNAPSHOT_EVERY_EPISODES: u64 = 500;
 
-/// One row per reported episode: `metrics/episodes.csv`.
+/// One row per reported episode: `metrics/episodes.csv` (rows the disk does not
+/// take wait in memory, [`AppendFile`]).
 struct EpisodeLog {
-    file: std::fs::File,
+    file: AppendFile,
 }
 
 impl EpisodeLog {
     fn open(dir: &RunDir) -> Result<EpisodeLog> {
         let path = dir.metrics_csv("episodes");
         let new = !path.exists();
-        let mut file = std::fs::OpenOptions::new().create(true).append(true).open(&path)?;
+        let mut file = AppendFile::open(&path)?;
         if new {
-            use std::io::Write;
-            writeln!(
-                file,
-                "episode,decision_steps,actor,env,task_id,category,x,y,yaw_deg,length,discounted_return,success,truncated"
-            )?;
+            file.append(
+                b"episode,decision_steps,actor,env,task_id,category,x,y,yaw_deg,length,discounted_return,success,truncated\n"
+                    .to_vec(),
+            );
         }
         Ok(EpisodeLog { file })
     }
 
-    #[allow(clippy::too_many_arguments)]
     fn write(&mut self, episode: u64, steps: u64, h: &EpisodeHeader, start: Pose, ret: f32) -> Result<()> {
-        use std::io::Write;
-        writeln!(
-            self.file,
-            "{episode},{steps},{},{},{},{},{:.3},{:.3},{:.1},{},{ret:.4},{},{}",
+        let line = format!(
+            "{episode},{steps},{},{},{},{},{:.3},{:.3},{:.1},{},{ret:.4},{},{}\n",
             h.actor,
             h.env,
             h.task_id,
@@ -58,7 +59,8 @@ impl EpisodeLog {
             h.length,
             h.success,
             h.truncated
-        )?;
+        );
+        self.file.append(line.into_bytes());
         Ok(())
     }
 }
@@ -89,6 +91,10 @@ pub struct CurriculumService {
     recent: VecDeque<(f32, bool)>,
     last_log: Instant,
     since_save: u64,
+    /// Writes that failed (state, snapshots, metrics, the episode log) and are retried.
+    health: WriteHealth,
+    /// Episodes reported at the newest state on disk.
+    last_good: Option<u64>,
 }
 
 impl CurriculumService {
@@ -122,6 +128,8 @@ impl CurriculumService {
         let metrics = Metrics::open(&dir.metrics(), &dir.tb(), "curriculum")?;
         let episode_log = EpisodeLog::open(&dir)?;
         tracing::info!(variant = ?cfg.curriculum.variant, "curriculum service ready");
+        let cfg_metrics_secs = cfg.runtime.metrics_every_secs.max(1.0);
+        let resumed_at = (curriculum.episodes() > 0).then(|| curriculum.episodes());
         Ok(CurriculumService {
             cfg,
             dir,
@@ -142,6 +150,8 @@ impl CurriculumService {
             recent: VecDeque::new(),
             last_log: Instant::now(),
             since_save: 0,
+            health: WriteHealth::new(Duration::from_secs_f64(cfg_metrics_secs)),
+            last_good: resumed_at,
         })
     }
 
@@ -154,22 +164,21 @@ impl CurriculumService {
         }
         // The last (partial) interval gets its metrics row too.
         self.log_interval()?;
-        self.save(&self.dir.curriculum_state())?;
+        self.final_save()?;
         let c = &self.curriculum;
         self.dir.write_stats(
             "curriculum",
-            &serde_json::json!({
-                "episodes": c.episodes(),
-                "tasks_issued": self.next_task_id - 1,
-                "proposed": self.proposed,
-                "t_c": c.scheduler().t_c(),
-                "decision_steps": self.decision_steps,
-                "acl_phase": c.scheduler().in_acl_phase(),
-                // When this process saw the PassFirstTask gate open (null if it opened
-                // before a resume, or has not): episodes and decision steps reported so far.
-                "first_task_passed": self.first_task_passed
-                    .map(|(episodes, steps)| serde_json::json!({"episodes": episodes, "decision_steps": steps})),
-            }),
+            &CurriculumStats {
+                episodes: c.episodes(),
+                tasks_issued: self.next_task_id - 1,
+                proposed: self.proposed.clone(),
+                t_c: c.scheduler().t_c(),
+                decision_steps: self.decision_steps,
+                acl_phase: c.scheduler().in_acl_phase(),
+                first_task_passed: self
+                    .first_task_passed
+                    .map(|(episodes, decision_steps)| GateOpened { episodes, decision_steps }),
+            },
         )?;
         tracing::info!(episodes = c.episodes(), "curriculum service stopped; state saved");
         Ok(())
@@ -256,9 +265,11 @@ impl CurriculumService {
             self.last_loss = Some(l);
         }
         self.episode_log.write(episodes, self.decision_steps, h, start, summary.discounted_return)?;
+        self.health.rows("episode log", self.episode_log.file.failure());
         if episodes.is_multiple_of(SNAPSHOT_EVERY_EPISODES) {
             let name = format!("ep{episodes:08}-steps{}.json", self.decision_steps);
-            self.save(&self.dir.curriculum_snapshots().join(name))?;
+            let outcome = self.save(&self.dir.curriculum_snapshots().join(name));
+            self.record_save("snapshot", outcome, "the snapshot is skipped; the next one is due in 500 episodes");
         }
         self.recent.push_back((summary.discounted_return, outcome.success));
         if self.recent.len() > 100 {
@@ -266,10 +277,50 @@ impl CurriculumService {
         }
         self.since_save += 1;
         if self.since_save >= self.cfg.runtime.curriculum_save_every_episodes {
-            self.save(&self.dir.curriculum_state())?;
+            let outcome = self.save(&self.dir.curriculum_state());
+            if outcome.is_ok() {
+                self.last_good = Some(episodes);
+            }
+            self.record_save("curriculum state", outcome, "serving goes on; retried after the next episodes");
             self.since_save = 0;
         }
         Ok(())
+    }
+
+    /// Log a failed save once per interval (it is retried at the next one), or its recovery.
+    fn record_save(&mut self, what: &'static str, outcome: Result<()>, meanwhile: &str) {
+        match outcome {
+            Ok(()) => self.health.succeeded(what),
+            Err(e) => {
+                let disk_full = e.downcast_ref::<CurriculumError>().is_some_and(CurriculumError::is_disk_full);
+                let last = self.last_good.map_or("none yet".into(), |n| format!("after {n} episodes"));
+                self.health.failed(
+                    what,
+                    Faults::STATE,
+                    disk_full,
+                    &format!("{e:#}"),
+                    &format!("{meanwhile}; last good state: {last}"),
+                );
+            }
+        }
+    }
+
+    /// The state at stop: tried three times, 2 s apart; an error naming the cause when
+    /// none succeeds.
+    fn final_save(&mut self) -> Result<()> {
+        for attempt in 1..=3 {
+            match self.save(&self.dir.curriculum_state()) {
+                Ok(()) => return Ok(()),
+                Err(e) if attempt < 3 => {
+                    tracing::warn!(
+                        "final curriculum state FAILED (attempt {attempt} of 3): {e:#}; trying again in 2 s"
+                    );
+                    std::thread::sleep(Duration::from_secs(2));
+                }
+                Err(e) => return Err(e.context("the final curriculum state could not be written")),
+            }
+        }
+        unreachable!("the last attempt returns")
     }
 
     /// Metrics row, log line and heartbeat; statistics that do not exist yet (no
@@ -299,6 +350,7 @@ impl CurriculumService {
             ("n_hard", count(Category::Hard)),
         ];
         self.metrics.log_optional(c.episodes(), &values)?;
+        self.health.metrics(&self.metrics);
         tracing::info!(
             episodes = c.episodes(),
             acl = s.in_acl_phase(),
@@ -317,6 +369,8 @@ impl CurriculumService {
             acl_steps: s.t_c(),
             episodes: c.episodes(),
             recent_return: mean_return.map_or(f32::NAN, |m| m as f32),
+            last_good: self.last_good.unwrap_or(0),
+            faults: self.health.faults(),
             ..Heartbeat::default()
         });
         Ok(())

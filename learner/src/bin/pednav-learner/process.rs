@@ -18,16 +18,18 @@ use pednav_learner::{
     save_checkpoint,
 };
 use pednav_runtime::ipc::{HeartbeatPublisher, StepSample, StepSubscriber, receive_step_round};
-use pednav_runtime::messages::{Heartbeat, StepHeader, process_kind, state_payload, step_flags};
+use pednav_runtime::messages::{Faults, Heartbeat, StepHeader, process_kind, state_payload, step_flags};
+use pednav_runtime::stats::{self, LearnerStats, StreamTally};
 use pednav_runtime::weights::WeightsBroadcaster;
+use pednav_runtime::write_health::WriteHealth;
 use pednav_runtime::{Ipc, Metrics, RunConfig, RunDir, StopFlag, run_prefix};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 
 /// Records received from one actor incarnation (for the integration test's
 /// count-and-checksum comparison).
-#[derive(Default, Clone, Copy, serde::Serialize)]
-struct StreamTally {
+#[derive(Default, Clone, Copy)]
+struct Tally {
     records: u64,
     checksum: u32,
     last_seq: Option<u64>,
@@ -51,7 +53,7 @@ struct Learner {
     replay: DualReplay,
     sample_rng: ChaCha8Rng,
     received: u64,
-    tallies: BTreeMap<(u32, u32), StreamTally>,
+    tallies: BTreeMap<(u32, u32), Tally>,
     kind: FrameKind,
     /// Bytes of one record's observation (`RunConfig::observation_bytes`).
     record_bytes: usize,
@@ -171,7 +173,7 @@ pub struct LearnerProcess {
     cfg: RunConfig,
     dir: RunDir,
     stop: StopFlag,
-    l: Learner,
+    learner: Learner,
     /// Step records received over the whole run (all incarnations of this process).
     received_total: u64,
     // Kept alive for the ports below.
@@ -186,6 +188,12 @@ pub struct LearnerProcess {
     interval: Interval,
     /// Set once `runtime.max_updates` or `max_env_steps` is reached.
     budget_spent: Option<&'static str>,
+    /// Whether the done marker (for the launcher) is written.
+    marker_written: bool,
+    /// Writes that failed (checkpoint, metrics, stats) and are retried.
+    health: WriteHealth,
+    /// The update count of the newest checkpoint on disk.
+    last_good: Option<u64>,
 }
 
 impl LearnerProcess {
@@ -258,11 +266,13 @@ impl LearnerProcess {
             "learner ready"
         );
         let interval = Interval::new(0, l.dsac.updates);
+        let cfg_metrics_secs = cfg.runtime.metrics_every_secs.max(1.0);
+        let resumed_from = l.resumed_from;
         Ok(LearnerProcess {
             cfg,
             dir,
             stop,
-            l,
+            learner: l,
             received_total,
             _ipc: ipc,
             steps_in,
@@ -274,6 +284,9 @@ impl LearnerProcess {
             last_checkpoint: Instant::now(),
             interval,
             budget_spent: None,
+            marker_written: false,
+            health: WriteHealth::new(Duration::from_secs_f64(cfg_metrics_secs)),
+            last_good: resumed_from,
         })
     }
 
@@ -292,11 +305,11 @@ impl LearnerProcess {
         // The last (partial) interval gets its metrics row too: a run shorter than
         // `metrics_every_secs` still leaves a learner log.
         self.log_interval()?;
-        self.save()?;
-        let status = self.budget_spent.unwrap_or("stopped");
-        write_stats(&self.dir, &self.l, self.received_total, status)?;
+        self.final_save()?;
+        let status = self.budget_spent.unwrap_or(stats::STOPPED);
+        self.write_stats(status);
         tracing::info!(
-            updates = self.l.dsac.updates,
+            updates = self.learner.dsac.updates,
             received = self.received_total,
             status,
             "final checkpoint written"
@@ -311,14 +324,16 @@ impl LearnerProcess {
         // One round takes at most STEP_ROUND_PER_ACTOR records from every actor, so
         // no actor starves while another's queue is always full.
         let mut took = 0;
-        while took < 512 && (self.l.limiter.can_insert() || self.l.refilling() || self.budget_spent.is_some()) {
+        while took < 512
+            && (self.learner.limiter.can_insert() || self.learner.refilling() || self.budget_spent.is_some())
+        {
             let n = self.take_round()?;
             if n == 0 {
                 break;
             }
             took += n;
         }
-        if self.budget_spent.is_none() && !self.l.refilling() && self.l.limiter.can_update() {
+        if self.budget_spent.is_none() && !self.learner.refilling() && self.learner.limiter.can_update() {
             self.update()?;
         } else if took == 0 {
             std::thread::sleep(Duration::from_micros(200));
@@ -327,13 +342,15 @@ impl LearnerProcess {
             self.log_interval()?;
         }
         if self.budget_spent.is_none() {
-            self.check_budget()?;
+            self.check_budget();
+        } else if !self.marker_written {
+            self.write_done_marker();
         }
         Ok(())
     }
 
     fn take_round(&mut self) -> Result<u64> {
-        let n = self.l.take_round(&self.steps_in, &mut self.round)?;
+        let n = self.learner.take_round(&self.steps_in, &mut self.round)?;
         self.received_total += n;
         Ok(n)
     }
@@ -342,41 +359,115 @@ impl LearnerProcess {
     fn update(&mut self) -> Result<()> {
         let c = &self.cfg;
         let t0 = Instant::now();
-        let batch = self.l.replay.sample_shifted(c.dsac.batch_size, c.dsac.random_shift, &mut self.l.sample_rng)?;
+        let batch =
+            self.learner.replay.sample_shifted(c.dsac.batch_size, c.dsac.random_shift, &mut self.learner.sample_rng)?;
         self.interval.t_sample += t0.elapsed().as_secs_f64();
         let t0 = Instant::now();
-        let stats = self.l.dsac.update(&batch)?;
+        let stats = self.learner.dsac.update(&batch)?;
         self.interval.t_update += t0.elapsed().as_secs_f64();
-        self.l.limiter.updated();
+        self.learner.limiter.updated();
         self.interval.add(&stats);
-        let updates = self.l.dsac.updates;
+        let updates = self.learner.dsac.updates;
         if updates.is_multiple_of(c.runtime.weights_every) {
-            self.weights_out.publish(&self.l.dsac.nets, updates)?;
+            self.weights_out.publish(&self.learner.dsac.nets, updates)?;
         }
         if updates.is_multiple_of(c.runtime.checkpoint_every_updates)
             || self.last_checkpoint.elapsed().as_secs_f64() > c.runtime.checkpoint_every_secs
         {
-            self.save()?;
+            self.try_save();
             self.last_checkpoint = Instant::now();
         }
         Ok(())
     }
 
-    fn save(&mut self) -> Result<()> {
-        let l = &mut self.l;
+    fn save(&mut self) -> std::result::Result<(), pednav_learner::LearnerError> {
+        let l = &mut self.learner;
         let extra = serde_json::to_value(ProcessState {
             sample_rng: l.sample_rng.clone(),
             received_total: self.received_total,
-        })?;
+        })
+        .expect("the process state serialises");
         save_checkpoint(&self.dir.learner_checkpoint(), &mut l.dsac, Some(l.limiter), extra)?;
+        self.last_good = Some(self.learner.dsac.updates);
         Ok(())
+    }
+
+    /// A periodic checkpoint: a failure (a full disk) is logged once per interval and
+    /// shown on the progress line; training goes on and the next interval retries.
+    /// The checkpoint on disk stays the last good one (both of its generations).
+    fn try_save(&mut self) {
+        match self.save() {
+            Ok(()) => self.health.succeeded("checkpoint"),
+            Err(e) => {
+                let last = self.last_good.map_or("none yet".into(), |u| format!("update {u}"));
+                self.health.failed(
+                    "checkpoint",
+                    Faults::CHECKPOINT,
+                    e.is_disk_full(),
+                    &e.to_string(),
+                    &format!("training goes on; last good checkpoint: {last}; retried at the next interval"),
+                );
+            }
+        }
+    }
+
+    /// The checkpoint at stop: tried three times, 2 s apart (space may be freed
+    /// meanwhile); an error when none succeeds, so the launcher shows the cause.
+    fn final_save(&mut self) -> Result<()> {
+        for attempt in 1..=3 {
+            match self.save() {
+                Ok(()) => return Ok(()),
+                Err(e) if attempt < 3 => {
+                    tracing::warn!("final checkpoint FAILED (attempt {attempt} of 3): {e}; trying again in 2 s");
+                    std::thread::sleep(Duration::from_secs(2));
+                }
+                Err(e) => {
+                    let last = self.last_good.map_or("none".into(), |u| format!("update {u}"));
+                    return Err(anyhow::Error::new(e)
+                        .context(format!("the final checkpoint could not be written (last good on disk: {last})")));
+                }
+            }
+        }
+        unreachable!("the last attempt returns")
+    }
+
+    /// Write the learner's live stats; a failure is logged once per interval.
+    fn write_stats(&mut self, status: &str) {
+        match write_stats(&self.dir, &self.learner, self.received_total, status) {
+            Ok(()) => self.health.succeeded("stats"),
+            Err(e) => self.health.failed(
+                "stats",
+                Faults::METRICS,
+                e.downcast_ref::<pednav_runtime::RuntimeError>().is_some_and(|r| r.is_disk_full()),
+                &format!("{e:#}"),
+                "written again at the next interval",
+            ),
+        }
+    }
+
+    /// Tell the launcher the budget is spent; retried at every step until it is written.
+    fn write_done_marker(&mut self) {
+        let reason = self.budget_spent.unwrap_or("budget");
+        match std::fs::write(self.dir.done_marker(), reason) {
+            Ok(()) => {
+                self.marker_written = true;
+                self.health.succeeded("done marker");
+            }
+            Err(e) => self.health.failed(
+                "done marker",
+                Faults::METRICS,
+                pednav_runtime::generations::is_disk_full(&e),
+                &format!("{}: {e}", self.dir.done_marker().display()),
+                "the run goes on until it is written",
+            ),
+        }
     }
 
     /// Metrics row, log line, heartbeat and live stats of the interval just ended.
     fn log_interval(&mut self) -> Result<()> {
-        let iv = std::mem::replace(&mut self.interval, Interval::new(self.l.received, self.l.dsac.updates));
+        let iv = std::mem::replace(&mut self.interval, Interval::new(self.learner.received, self.learner.dsac.updates));
         let secs = iv.started.elapsed().as_secs_f64();
-        let l = &self.l;
+        let l = &self.learner;
         let ups = l.dsac.updates - iv.updates;
         let steps = l.received - iv.received;
         let per_update = |t: f64| (ups > 0).then(|| 1e3 * t / ups as f64);
@@ -403,6 +494,7 @@ impl LearnerProcess {
             row.push(("state_loss", iv.mean(s.state_loss)));
         }
         self.metrics.log_optional(self.received_total, &row)?;
+        self.health.metrics(&self.metrics);
         tracing::info!(
             received = self.received_total,
             updates = l.dsac.updates,
@@ -419,17 +511,20 @@ impl LearnerProcess {
             updates: l.dsac.updates,
             version: l.dsac.updates - l.dsac.updates % self.cfg.runtime.weights_every,
             rate: (steps as f64 / secs) as f32,
+            last_good: self.last_good.unwrap_or(0),
+            faults: self.health.faults(),
             ..Heartbeat::default()
         });
-        write_stats(&self.dir, l, self.received_total, "running")
+        self.write_stats(stats::RUNNING);
+        Ok(())
     }
 
     /// When `runtime.max_updates` or `max_env_steps` is reached: checkpoint, and ask
     /// the launcher to stop the run (the done marker); keep receiving, without
     /// updates, until it stops the actors and then this process.
-    fn check_budget(&mut self) -> Result<()> {
+    fn check_budget(&mut self) {
         let r = &self.cfg.runtime;
-        self.budget_spent = if r.max_updates > 0 && self.l.dsac.updates >= r.max_updates {
+        self.budget_spent = if r.max_updates > 0 && self.learner.dsac.updates >= r.max_updates {
             Some("max_updates")
         } else if r.max_env_steps > 0 && self.received_total >= r.max_env_steps {
             Some("max_env_steps")
@@ -439,36 +534,37 @@ impl LearnerProcess {
         if let Some(reason) = self.budget_spent {
             tracing::info!(
                 reason,
-                updates = self.l.dsac.updates,
+                updates = self.learner.dsac.updates,
                 "budget spent; waiting for the launcher to stop the run"
             );
-            self.save()?;
-            std::fs::write(self.dir.done_marker(), reason)?;
+            self.try_save();
+            self.write_done_marker();
         }
-        Ok(())
     }
 }
 
 fn write_stats(dir: &RunDir, l: &Learner, received_total: u64, status: &str) -> Result<()> {
-    let tallies: Vec<_> = l
+    let streams = l
         .tallies
         .iter()
-        .map(|(&(actor, incarnation), t)| {
-            serde_json::json!({"actor": actor, "incarnation": incarnation, "records": t.records, "checksum": t.checksum, "gaps": t.gaps})
+        .map(|(&(actor, incarnation), t)| StreamTally {
+            actor,
+            incarnation,
+            records: t.records,
+            checksum: t.checksum,
+            gaps: t.gaps,
         })
         .collect();
-    dir.write_stats(
-        "learner",
-        &serde_json::json!({
-            "status": status,
-            "pid": std::process::id(),
-            "updates": l.dsac.updates,
-            "resumed_from_update": l.resumed_from,
-            "received_this_process": l.received,
-            "received_total": received_total,
-            "limiter": l.limiter,
-            "streams": tallies,
-        }),
-    )?;
+    let stats = LearnerStats {
+        status: status.to_string(),
+        pid: std::process::id(),
+        updates: l.dsac.updates,
+        resumed_from_update: l.resumed_from,
+        received_this_process: l.received,
+        received_total,
+        limiter: serde_json::to_value(l.limiter)?,
+        streams,
+    };
+    dir.write_stats("learner", &stats)?;
     Ok(())
 }

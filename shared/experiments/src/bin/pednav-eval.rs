@@ -1,7 +1,7 @@
 //! `pednav-eval` — the paper's validation protocol on a checkpoint.
 //!
 //! ```text
-//! pednav-eval --run-dir runs/X                       # 14 points × 8 yaws × 10 runs, T_max 2000, learned policy (mode)
+//! pednav-eval --run-dir runs/X                       # 14 points × 8 yaws × 10 runs, T_max 2000, learned policy (sampled)
 //! pednav-eval --run-dir runs/X --workers 2           # the same over 2 processes
 //! pednav-eval --run-dir runs/X --starts starts.csv   # any start list (x,y,yaw in degrees)
 //! pednav-eval --run-dir docs/results/R --out /tmp/R  # a committed result, re-evaluated
@@ -16,6 +16,7 @@
 //! (every episode) and `trajectories.png` (Fig. 5) to `--out` (default
 //! `<run>/eval/<policy>`).
 
+use std::io::IsTerminal;
 use std::path::{Path, PathBuf};
 use std::process::Command;
 use std::time::Instant;
@@ -235,15 +236,22 @@ fn main() -> Result<()> {
     let mut results: Vec<EpisodeResult> = if cli.workers == 1 {
         let mut ev = Evaluator::new(cfg.scene()?, &cfg.sim, cli.t_max, gamma, cli.envs, kind(&cli), nets, cli.seed)?;
         let n = all.len();
+        let tty = std::io::stderr().is_terminal();
+        let mut last_line = Instant::now();
         ev.run(&all, |done| {
-            if done % 20 == 0 || done == n {
-                eprint!("\r  {done}/{n} episodes ({:.0} s)", t0.elapsed().as_secs_f64());
+            let line = progress(done, n, t0.elapsed().as_secs_f64());
+            if tty && (done % 20 == 0 || done == n) {
+                eprint!("\r{line}");
+            } else if !tty && (last_line.elapsed().as_secs() >= 30 || done == n) {
+                eprintln!("{line}");
+                last_line = Instant::now();
             }
         })?
     } else {
         run_workers(&cli, &out)?
     };
-    eprintln!("\r  {} episodes in {:.0} s", results.len(), t0.elapsed().as_secs_f64());
+    let cr = if std::io::stderr().is_terminal() { "\r" } else { "" };
+    eprintln!("{cr}  {} episodes in {:.0} s", results.len(), t0.elapsed().as_secs_f64());
     let order = |r: &EpisodeResult| (r.point, YAWS_DEG.iter().position(|&y| y == r.yaw_deg).unwrap_or(99), r.run);
     results.sort_by_key(order);
 
@@ -290,6 +298,18 @@ fn main() -> Result<()> {
     }
     eprintln!("wrote {}/{{table.txt,table.csv,results.csv,trajectories.png}}", out.display());
     Ok(())
+}
+
+/// `  340/1120 episodes (212 s, ETA 00:08:07)`: episodes done, elapsed, and the time
+/// left at the pace so far.
+fn progress(done: usize, n: usize, secs: f64) -> String {
+    let eta = if done == 0 {
+        "—".to_string()
+    } else {
+        let left = (secs / done as f64 * (n - done) as f64) as u64;
+        format!("{:02}:{:02}:{:02}", left / 3600, (left / 60) % 60, left % 60)
+    };
+    format!("  {done}/{n} episodes ({secs:.0} s, ETA {eta})")
 }
 
 fn gif_task(spec: &str, all: &[EvalTask]) -> Result<EvalTask> {

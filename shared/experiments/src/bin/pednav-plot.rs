@@ -9,6 +9,8 @@
 //! pednav-plot all --run-dir runs/X             # curves + curriculum + learner
 //! pednav-plot table --group "TCN=runs/a,runs/b" --random eval/random --out table.md
 //!                                              # Table III layout from the runs' evaluations
+//! pednav-plot interval --a "NavACL+=runs/a,runs/b,runs/c" --b "NavACL=runs/d,runs/e,runs/f"
+//!                                              # 95 % interval of A − B on Avg.Int and Avg.Ext
 //! ```
 //! Training curves come from `metrics/episodes.csv` (one row per episode, written
 //! by the curriculum service).
@@ -17,6 +19,7 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result, bail};
 use clap::{Parser, Subcommand};
+use pednav_experiments::bootstrap::{self, Average, RunReturns};
 use pednav_experiments::plots::{self, PALETTE, Series, moving_average};
 use pednav_runtime::{RunConfig, RunDir};
 use pednav_sim::oracle::{Oracle, OracleConfig};
@@ -85,6 +88,26 @@ enum Cmd {
         #[arg(long)]
         out: Option<PathBuf>,
     },
+    /// A confidence interval of the difference A − B on Avg.Int and Avg.Ext between two
+    /// groups of runs, from their per-episode results (`results.csv` of `pednav-eval`):
+    /// a hierarchical bootstrap over runs, then over each run's episodes per point.
+    Interval {
+        /// LABEL=RUN[,RUN…]: group A (a RUN is a run directory, its evaluation folder or a results.csv).
+        #[arg(long)]
+        a: String,
+        /// LABEL=RUN[,RUN…]: group B.
+        #[arg(long)]
+        b: String,
+        /// Bootstrap replicates.
+        #[arg(long, default_value_t = 10_000)]
+        replicates: usize,
+        /// Coverage of the interval.
+        #[arg(long, default_value_t = 0.95)]
+        level: f64,
+        /// Seed of the resampling.
+        #[arg(long, default_value_t = 0)]
+        seed: u64,
+    },
     /// The learner's state over training, from `metrics/learner.csv`: temperature α,
     /// policy entropy, the batch's mean Q, critic and policy losses, and the replay's
     /// terminal share, against env steps, one curve per run.
@@ -129,7 +152,7 @@ fn episodes(run: &Path) -> Result<Vec<(f64, f64)>> {
 
 fn oracle_lines(cfg: &RunConfig) -> Result<Vec<(String, f64)>> {
     let scene = cfg.scene()?;
-    let world = SimWorld::new(scene, SimConfig { obs_mode: ObsMode::StateDebug, ..cfg.sim.clone() })?;
+    let world = SimWorld::new(scene, SimConfig { obs_mode: ObsMode::State, ..cfg.sim.clone() })?;
     let gamma = cfg.dsac.gamma as f32;
     let oracle = Oracle::plan(&world, OracleConfig { gamma, ..OracleConfig::default() });
     let t_max = cfg.sim.t_max;
@@ -277,6 +300,55 @@ fn curriculum(run: &Path, out: &Path, max: usize) -> Result<()> {
 }
 
 /// `table.csv` of an evaluation given as a run directory, an evaluation folder or the file.
+/// The per-episode results of a run directory, an evaluation folder, or the file itself.
+fn eval_results(path: &Path) -> PathBuf {
+    if path.is_file() {
+        path.to_path_buf()
+    } else if path.join("results.csv").is_file() {
+        path.join("results.csv")
+    } else {
+        path.join("eval").join("learned").join("results.csv")
+    }
+}
+
+/// `LABEL=RUN[,RUN…]` → the label and each run's returns.
+fn group_returns(spec: &str) -> Result<(String, Vec<RunReturns>)> {
+    let (label, runs) = spec.split_once('=').with_context(|| format!("expected LABEL=RUN[,RUN…], got `{spec}`"))?;
+    let runs: Vec<RunReturns> = runs
+        .split(',')
+        .filter(|r| !r.is_empty())
+        .map(|r| RunReturns::read(&eval_results(Path::new(r))).map_err(anyhow::Error::from))
+        .collect::<Result<_>>()?;
+    if runs.is_empty() {
+        bail!("{label}: no runs");
+    }
+    Ok((label.to_string(), runs))
+}
+
+fn interval(a: &str, b: &str, replicates: usize, level: f64, seed: u64) -> Result<String> {
+    if !(level > 0.0 && level < 1.0) || replicates < 100 {
+        bail!("--level must lie in (0, 1) and --replicates be at least 100");
+    }
+    let ((la, ra), (lb, rb)) = (group_returns(a)?, group_returns(b)?);
+    let mut s = format!(
+        "{la} (n = {}) − {lb} (n = {}): {:.0} % hierarchical bootstrap over runs, then episodes per point; {replicates} replicates\n",
+        ra.len(),
+        rb.len(),
+        100.0 * level
+    );
+    for which in [Average::Int, Average::Ext] {
+        let i = bootstrap::difference(&ra, &rb, which, replicates, level, seed)?;
+        s += &format!(
+            "Avg.{which:?}: {:+.1} [{:+.1}, {:+.1}]; A − B > 0 in {:.1} % of replicates\n",
+            i.estimate,
+            i.low,
+            i.high,
+            100.0 * i.share_above_zero
+        );
+    }
+    Ok(s)
+}
+
 fn eval_table(path: &Path) -> PathBuf {
     if path.is_file() {
         path.to_path_buf()
@@ -287,14 +359,8 @@ fn eval_table(path: &Path) -> PathBuf {
     }
 }
 
-/// Mean and population std.
-fn mean_std(v: &[f64]) -> (f64, f64) {
-    let m = v.iter().sum::<f64>() / v.len() as f64;
-    (m, (v.iter().map(|x| (x - m).powi(2)).sum::<f64>() / v.len() as f64).sqrt())
-}
-
 fn table(groups: &[String], random: Option<&Path>) -> Result<String> {
-    use pednav_experiments::table::{EvalSummary, gap_closed};
+    use pednav_experiments::table::{EvalSummary, gap_closed, mean_and_sample_std};
     use std::fmt::Write as _;
     let read = |p: &Path| EvalSummary::read(&eval_table(p)).map_err(anyhow::Error::from);
     let random = random.map(read).transpose()?;
@@ -312,7 +378,7 @@ fn table(groups: &[String], random: Option<&Path>) -> Result<String> {
         rows.push((label.to_string(), evals));
     }
     let pm = |v: &[f64]| {
-        let (m, s) = mean_std(v);
+        let (m, s) = mean_and_sample_std(v);
         if v.len() > 1 { format!("{m:.1} ± {s:.1}") } else { format!("{m:.1}") }
     };
     let gap = |v: f64, which: usize| match (random, oracle) {
@@ -340,8 +406,8 @@ fn table(groups: &[String], random: Option<&Path>) -> Result<String> {
             pm(&ints),
             pm(&exts),
             100.0 * success,
-            gap(mean_std(&ints).0, 0),
-            gap(mean_std(&exts).0, 1),
+            gap(mean_and_sample_std(&ints).0, 0),
+            gap(mean_and_sample_std(&exts).0, 1),
             per_run.join(", ")
         );
     }
@@ -357,6 +423,11 @@ fn table(groups: &[String], random: Option<&Path>) -> Result<String> {
     if let Some((oi, oe)) = oracle {
         let _ = writeln!(s, "| oracle | — | {oi:.1} | {oe:.1} | — | 1 | 1 | |");
     }
+    let _ = writeln!(
+        s,
+        "\nAvg.Int / Avg.Ext: mean ± sample standard deviation over the `runs` (n) of each row, each run's \
+         average over its validation points; success: over all their episodes; gap closed: of the mean."
+    );
     Ok(s)
 }
 
@@ -387,9 +458,9 @@ fn compare(groups: &[String], out: &Path, window: usize) -> Result<()> {
                 std.push(0.0);
                 continue;
             }
-            let m = vals.iter().sum::<f64>() / vals.len() as f64;
+            let (m, s) = pednav_experiments::table::mean_and_sample_std(&vals);
             mean.push(m);
-            std.push((vals.iter().map(|v| (v - m).powi(2)).sum::<f64>() / vals.len() as f64).sqrt());
+            std.push(s);
         }
         let keep: Vec<usize> = (0..grid.len()).filter(|&i| mean[i].is_finite()).collect();
         series.push(Series {
@@ -402,7 +473,7 @@ fn compare(groups: &[String], out: &Path, window: usize) -> Result<()> {
     }
     plots::line_chart(
         out,
-        "discounted return, mean ± std over runs",
+        "discounted return, mean ± sample std over runs",
         "decision steps",
         "discounted return (smoothed)",
         &series,
@@ -426,6 +497,10 @@ fn main() -> Result<()> {
             if let Some(out) = out {
                 std::fs::write(&out, &text).with_context(|| format!("writing {}", out.display()))?;
             }
+            Ok(())
+        }
+        Cmd::Interval { a, b, replicates, level, seed } => {
+            print!("{}", interval(&a, &b, replicates, level, seed)?);
             Ok(())
         }
         Cmd::Learner { run_dir, out } => {

@@ -323,7 +323,7 @@ pub(super) fn matmul(
         rhs_strides,
         par,
     };
-    // Safety: the slices cover every element addressed by the strides (asserted
+    // SAFETY: the slices cover every element addressed by the strides (asserted
     // above), and `dst` does not alias the inputs (distinct borrows).
     unsafe { op.run(Isa::active()) }
 }
@@ -415,12 +415,12 @@ impl GemmOp {
         }
     }
 
-    /// Safety: the operands cover every element their strides address, `dst` aliases
+    /// SAFETY: the operands cover every element their strides address, `dst` aliases
     /// neither input, and `isa` is supported by this CPU (asserted).
     unsafe fn run(self, isa: Isa) {
         assert!(isa.is_supported(), "instruction set {isa} is not available on this CPU");
         let op = self.column_major();
-        // Safety: as documented on the function.
+        // SAFETY: as documented on the function.
         unsafe {
             match isa {
                 #[cfg(target_arch = "x86_64")]

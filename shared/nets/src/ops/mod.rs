@@ -7,7 +7,7 @@
 /// false`: plain multiply and add, since a fused multiply-add without the
 /// instruction is a slow library call), as `isa` says. `$imp` must be plain loops
 /// (`#[inline(always)]`, no closures around the arithmetic): a closure is compiled
-/// without the wrapper's target features (DESIGN §7).
+/// without the wrapper's target features (docs/design.md §8).
 macro_rules! multiversioned {
     ($(#[$doc:meta])* fn $name:ident($($arg:ident: $ty:ty),* $(,)?) => $imp:ident) => {
         multiversioned! { $(#[$doc])* fn $name<>($($arg: $ty),*) => $imp }
@@ -28,9 +28,9 @@ macro_rules! multiversioned {
                     $imp::<$($g,)* true>($($arg),*)
                 }
                 match isa {
-                    // Safety: the CPU supports the instruction set (asserted above).
+                    // SAFETY: the CPU supports the instruction set (asserted above).
                     $crate::ops::Isa::Avx512 => return unsafe { v4::<$($g),*>($($arg),*) },
-                    // Safety: as above.
+                    // SAFETY: as above.
                     $crate::ops::Isa::Avx2 => return unsafe { v3::<$($g),*>($($arg),*) },
                     $crate::ops::Isa::Baseline => {}
                 }

@@ -6,7 +6,7 @@
 //! points), so the intrinsics inline into straight-line vector code. No closure
 //! stands between an entry point and these calls: a closure is compiled as a
 //! function of its own, without the entry point's target features, and a fused
-//! multiply-add there becomes a library call (DESIGN §7).
+//! multiply-add there becomes a library call (docs/design.md §8).
 
 #[cfg(target_arch = "x86_64")]
 use std::arch::x86_64::{
@@ -17,7 +17,7 @@ use std::arch::x86_64::{
 
 /// A vector register of `LANES` floats and the operations the kernels need.
 ///
-/// Safety: every method needs the instruction set of the implementing type, and the
+/// SAFETY: every method needs the instruction set of the implementing type, and the
 /// pointer methods need `LANES` readable (or writable) floats at the pointer.
 pub(crate) trait Simd {
     /// The register type.
@@ -50,30 +50,37 @@ impl Simd for Avx2 {
     const LANES: usize = 8;
     #[inline(always)]
     unsafe fn splat(x: f32) -> __m256 {
+        // SAFETY: the caller runs on a CPU with this instruction set (the trait's contract).
         unsafe { _mm256_set1_ps(x) }
     }
     #[inline(always)]
     unsafe fn zero() -> __m256 {
+        // SAFETY: the caller runs on a CPU with this instruction set (the trait's contract).
         unsafe { _mm256_setzero_ps() }
     }
     #[inline(always)]
     unsafe fn load(p: *const f32) -> __m256 {
+        // SAFETY: the caller runs on a CPU with this instruction set (the trait's contract).
         unsafe { _mm256_loadu_ps(p) }
     }
     #[inline(always)]
     unsafe fn store(p: *mut f32, v: __m256) {
+        // SAFETY: the caller runs on a CPU with this instruction set (the trait's contract).
         unsafe { _mm256_storeu_ps(p, v) }
     }
     #[inline(always)]
     unsafe fn add(a: __m256, b: __m256) -> __m256 {
+        // SAFETY: the caller runs on a CPU with this instruction set (the trait's contract).
         unsafe { _mm256_add_ps(a, b) }
     }
     #[inline(always)]
     unsafe fn fma(a: __m256, b: __m256, c: __m256) -> __m256 {
+        // SAFETY: the caller runs on a CPU with this instruction set (the trait's contract).
         unsafe { _mm256_fmadd_ps(a, b, c) }
     }
     #[inline(always)]
     unsafe fn max(a: __m256, b: __m256) -> __m256 {
+        // SAFETY: the caller runs on a CPU with this instruction set (the trait's contract).
         unsafe { _mm256_max_ps(a, b) }
     }
 }
@@ -88,30 +95,37 @@ impl Simd for Avx512 {
     const LANES: usize = 16;
     #[inline(always)]
     unsafe fn splat(x: f32) -> __m512 {
+        // SAFETY: the caller runs on a CPU with this instruction set (the trait's contract).
         unsafe { _mm512_set1_ps(x) }
     }
     #[inline(always)]
     unsafe fn zero() -> __m512 {
+        // SAFETY: the caller runs on a CPU with this instruction set (the trait's contract).
         unsafe { _mm512_setzero_ps() }
     }
     #[inline(always)]
     unsafe fn load(p: *const f32) -> __m512 {
+        // SAFETY: the caller runs on a CPU with this instruction set (the trait's contract).
         unsafe { _mm512_loadu_ps(p) }
     }
     #[inline(always)]
     unsafe fn store(p: *mut f32, v: __m512) {
+        // SAFETY: the caller runs on a CPU with this instruction set (the trait's contract).
         unsafe { _mm512_storeu_ps(p, v) }
     }
     #[inline(always)]
     unsafe fn add(a: __m512, b: __m512) -> __m512 {
+        // SAFETY: the caller runs on a CPU with this instruction set (the trait's contract).
         unsafe { _mm512_add_ps(a, b) }
     }
     #[inline(always)]
     unsafe fn fma(a: __m512, b: __m512, c: __m512) -> __m512 {
+        // SAFETY: the caller runs on a CPU with this instruction set (the trait's contract).
         unsafe { _mm512_fmadd_ps(a, b, c) }
     }
     #[inline(always)]
     unsafe fn max(a: __m512, b: __m512) -> __m512 {
+        // SAFETY: the caller runs on a CPU with this instruction set (the trait's contract).
         unsafe { _mm512_max_ps(a, b) }
     }
 }

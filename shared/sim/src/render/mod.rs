@@ -207,13 +207,13 @@ pub fn prepare_headless_env() {
         tracing::debug!("prepare_headless_env after other threads started: XDG_RUNTIME_DIR left unset");
         return;
     }
-    // Safety: getuid has no preconditions.
+    // SAFETY: getuid has no preconditions.
     let dir = std::env::temp_dir().join(format!("pednav-runtime-{}", unsafe { libc::getuid() }));
     use std::os::unix::fs::{DirBuilderExt, PermissionsExt};
     let made = std::fs::DirBuilder::new().recursive(true).mode(0o700).create(&dir);
     let private = std::fs::metadata(&dir).is_ok_and(|m| m.is_dir() && m.permissions().mode() & 0o077 == 0);
     if made.is_ok() && private {
-        // Safety: this is the process's only thread (checked above).
+        // SAFETY: this is the process's only thread (checked above).
         unsafe { std::env::set_var("XDG_RUNTIME_DIR", &dir) };
     }
 }

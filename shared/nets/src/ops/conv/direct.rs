@@ -86,7 +86,7 @@ pub(super) fn forward(
     #[cfg(target_arch = "x86_64")]
     {
         assert!(isa.is_supported(), "instruction set {isa} is not available on this CPU");
-        // Safety: the CPU has the instruction set (asserted); sizes were checked above.
+        // SAFETY: the CPU has the instruction set (asserted); sizes were checked above.
         // Register tiles (R vectors of C_out × P positions): AVX2 has 16 registers,
         // AVX-512 32; P·R accumulators + R weight vectors + one broadcast fit.
         unsafe {
@@ -113,7 +113,7 @@ pub(super) fn weight_grad(g: &Geometry, isa: Isa, xp: &[f32], gy: &[f32], dw: &m
     #[cfg(target_arch = "x86_64")]
     {
         assert!(isa.is_supported(), "instruction set {isa} is not available on this CPU");
-        // Safety: as in `forward`. Tiles of T taps × R vectors of dW stay in
+        // SAFETY: as in `forward`. Tiles of T taps × R vectors of dW stay in
         // registers (T·R accumulators + R gradient vectors + one broadcast).
         unsafe {
             match (isa, g.co) {
@@ -174,7 +174,7 @@ pub(super) fn input_grad(g: &Geometry, isa: Isa, wt: &[f32], gy: &[f32], dxp: &m
     assert!(wt.len() >= g.spec.weight_rows(g.ci) * g.co, "weights too short");
     assert!(gy.len() >= g.out_len(), "output gradient too short");
     #[cfg(target_arch = "x86_64")]
-    // Safety: the instruction set is available and the sizes were checked above.
+    // SAFETY: the instruction set is available and the sizes were checked above.
     unsafe {
         match isa {
             Isa::Avx512 => vector::input_grad_avx512::<2, 12>(g, wt, gy, dxp),
@@ -266,7 +266,7 @@ mod vector {
         assert_eq!(co % width, 0, "C_out is a whole number of register tiles");
         let (x, w, y) = (xp.as_ptr(), w.as_ptr(), y.as_mut_ptr());
         let (first, end) = (positions.start, positions.end);
-        // Safety: positions q..q+P (or q) and their taps are in bounds; channel
+        // SAFETY: positions q..q+P (or q) and their taps are in bounds; channel
         // groups c0..c0+width lie inside C_out.
         unsafe {
             let mut q = first;
@@ -314,24 +314,27 @@ mod vector {
                 for i in 0..run {
                     let mut wv = *bias;
                     for (r, v) in wv.iter_mut().enumerate() {
-                        // Safety: k_t·k_h·k_w·C_in weight rows of C_out floats.
+                        // SAFETY: k_t·k_h·k_w·C_in weight rows of C_out floats.
                         *v = unsafe { S::load(row.add(S::LANES * r)) };
                     }
+                    // SAFETY: the next weight row, still inside the k_t·k_h·k_w·C_in rows.
                     row = unsafe { row.add(co) };
                     for j in 0..N {
-                        // Safety: inside the padded input (see check_sizes).
+                        // SAFETY: inside the padded input (see check_sizes).
                         let xv = unsafe { S::splat(*x.add(base[j] + off + i)) };
                         for r in 0..R {
+                            // SAFETY: register arithmetic on the instruction set the caller checked.
                             acc[j][r] = unsafe { S::fma(xv, wv[r], acc[j][r]) };
                         }
                     }
                 }
             }
         }
+        // SAFETY: register arithmetic on the instruction set the caller checked.
         let zero = unsafe { S::zero() };
         for (j, a) in acc.iter().enumerate() {
             for (r, &lane) in a.iter().enumerate() {
-                // Safety: N positions of C_out floats from `out`.
+                // SAFETY: N positions of C_out floats from `out`.
                 unsafe {
                     let v = if g.spec.relu { S::max(lane, zero) } else { lane };
                     S::store(out.add(j * co + S::LANES * r), v);
@@ -386,7 +389,7 @@ mod vector {
                     for (u, o) in offs.iter_mut().enumerate().take(tile) {
                         *o = tap_offsets[k0 + u];
                     }
-                    // Safety: q0..q0+len are output positions, k0..k0+tile taps, c0..c0+width
+                    // SAFETY: q0..q0+len are output positions, k0..k0+tile taps, c0..c0+width
                     // channels; every
                     // input read lies inside the padded input (see check_sizes).
                     unsafe {
@@ -437,7 +440,7 @@ mod vector {
         let positions = g.to * g.ps();
         let (wt, gy, dx) = (wt.as_ptr(), gy.as_ptr(), dxp.as_mut_ptr());
         let mut q = 0;
-        // Safety: positions q..q+P (or q) are output positions of this sample.
+        // SAFETY: positions q..q+P (or q) are output positions of this sample.
         unsafe {
             while q < positions {
                 if q + P <= positions {
@@ -464,7 +467,7 @@ mod vector {
         let run = kw * g.ci;
         let taps = kt * kh * run;
         let base: [usize; N] = input_offsets(g, q0);
-        // Safety: gradient rows q0..q0+N exist; Wᵀ has C_out rows of `taps`; every
+        // SAFETY: gradient rows q0..q0+N exist; Wᵀ has C_out rows of `taps`; every
         // tile lies inside one run of the padded input (input_grad_supported).
         unsafe {
             let grows = gy.add(q0 * co);
@@ -512,6 +515,8 @@ mod vector {
                 gy: &[f32],
                 dxp: &mut [f32],
             ) {
+                // SAFETY: this function's target features are enabled (its caller checked
+                // the CPU has them); the slices' sizes are the caller's contract.
                 unsafe { input_grad_blocks::<$simd, R, P>(g, wt, gy, dxp) }
             }
 
@@ -524,6 +529,8 @@ mod vector {
                 y: &mut [f32],
                 positions: Range<usize>,
             ) {
+                // SAFETY: this function's target features are enabled (its caller checked
+                // the CPU has them); the slices' sizes are the caller's contract.
                 unsafe { forward_blocks::<$simd, R, P>(g, xp, w, bias, y, positions) }
             }
 
@@ -534,6 +541,8 @@ mod vector {
                 gy: &[f32],
                 dw: &mut [f32],
             ) {
+                // SAFETY: this function's target features are enabled (its caller checked
+                // the CPU has them); the slices' sizes are the caller's contract.
                 unsafe { weight_grad_tiles::<$simd, R, T>(g, xp, gy, dw) }
             }
         };

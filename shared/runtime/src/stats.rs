@@ -1,0 +1,162 @@
+//! The stats files of a run (`stats/*.json`): what each process writes about itself
+//! while it runs and when it stops, and what the launcher's soak, the end-to-end
+//! tests and people read. One type per file, written and read through the same
+//! serde definition, so a writer and a reader cannot disagree on a field's name
+//! (a renamed field fails to parse instead of reading as a silent zero).
+//!
+//! Files: `learner.json` ([`LearnerStats`]), `curriculum.json` ([`CurriculumStats`]),
+//! `actor-K.live.json` while actor K runs and `actor-K.I.json` when its incarnation I
+//! ends ([`ActorStats`]; names from [`actor_live`] and [`actor_final`]).
+
+use std::collections::BTreeMap;
+
+use serde::{Deserialize, Serialize};
+
+/// Status of a process that is still running.
+pub const RUNNING: &str = "running";
+/// Status of a learner stopped by the launcher (its final checkpoint is written).
+pub const STOPPED: &str = "stopped";
+
+/// One actor incarnation's stream as its sender counts it.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ActorStats {
+    /// Actor id.
+    pub actor: u32,
+    /// Which start of this actor (1 for the first).
+    pub incarnation: u32,
+    /// Its process id.
+    pub pid: u32,
+    /// [`RUNNING`], or why it ended.
+    pub status: String,
+    /// Step records sent.
+    pub steps_sent: u64,
+    /// Wrapping sum of the records' CRC-32s (the learner sums the same).
+    pub checksum: u32,
+    /// Episodes finished.
+    pub episodes: u64,
+    /// Distinct policy versions it acted with.
+    pub policy_versions_used: u64,
+    /// The first of them.
+    pub first_policy_version: Option<u64>,
+    /// The last of them.
+    pub last_policy_version: Option<u64>,
+    /// Tasks received from the curriculum service.
+    pub tasks_received: u64,
+    /// The last task's id.
+    pub last_task_id: u64,
+}
+
+/// One actor incarnation's stream as one learner process received it.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct StreamTally {
+    /// Actor id.
+    pub actor: u32,
+    /// The actor's incarnation.
+    pub incarnation: u32,
+    /// Records taken.
+    pub records: u64,
+    /// Wrapping sum of their CRC-32s.
+    pub checksum: u32,
+    /// Sequence gaps seen.
+    pub gaps: u64,
+}
+
+/// The learner process.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct LearnerStats {
+    /// [`RUNNING`], [`STOPPED`], or the budget that ended the run (`max_updates`,
+    /// `max_env_steps`).
+    pub status: String,
+    /// Its process id.
+    pub pid: u32,
+    /// Updates done (over the whole run).
+    pub updates: u64,
+    /// The update count of the checkpoint this process resumed from, if it did.
+    pub resumed_from_update: Option<u64>,
+    /// Step records this process received.
+    pub received_this_process: u64,
+    /// Step records received over the whole run (all learner processes).
+    pub received_total: u64,
+    /// The replay-ratio limiter's counters (the learner's `RateLimiter`, as it serialises).
+    pub limiter: serde_json::Value,
+    /// Every actor incarnation's stream this process received.
+    pub streams: Vec<StreamTally>,
+}
+
+/// When the PassFirstTask gate opened, as the curriculum service saw it.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct GateOpened {
+    /// Episodes reported when it opened (the one that opened it included).
+    pub episodes: u64,
+    /// Decision steps of those episodes.
+    pub decision_steps: u64,
+}
+
+/// The curriculum service (written when it stops).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct CurriculumStats {
+    /// Episodes reported.
+    pub episodes: u64,
+    /// Tasks handed out.
+    pub tasks_issued: u64,
+    /// Tasks proposed per category name.
+    pub proposed: BTreeMap<String, u64>,
+    /// Decision steps of the ACL phase (t_c).
+    pub t_c: u64,
+    /// Decision steps of every reported episode.
+    pub decision_steps: u64,
+    /// Whether the run is in the ACL phase.
+    pub acl_phase: bool,
+    /// When this process saw the gate open (`None` if it opened before a resume, or has not).
+    pub first_task_passed: Option<GateOpened>,
+}
+
+/// The stats name of actor `actor`'s running incarnation: `actor-K.live`.
+pub fn actor_live(actor: u32) -> String {
+    format!("actor-{actor}.live")
+}
+
+/// The stats name of actor `actor`'s ended incarnation `incarnation`: `actor-K.I`.
+pub fn actor_final(actor: u32, incarnation: u32) -> String {
+    format!("actor-{actor}.{incarnation}")
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn stats_read_back_as_written_and_a_renamed_field_is_refused() {
+        let root = std::env::temp_dir().join(format!("pednav-stats-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&root);
+        let dir = crate::RunDir::new(&root);
+        std::fs::create_dir_all(dir.stats()).unwrap();
+        let learner = LearnerStats {
+            status: STOPPED.into(),
+            pid: 7,
+            updates: 40,
+            resumed_from_update: None,
+            received_this_process: 320,
+            received_total: 320,
+            limiter: serde_json::json!({"inserted": 320}),
+            streams: vec![StreamTally { actor: 0, incarnation: 1, records: 320, checksum: 99, gaps: 0 }],
+        };
+        dir.write_stats("learner", &learner).unwrap();
+        assert_eq!(dir.read_stats::<LearnerStats>("learner").unwrap(), Some(learner));
+        assert_eq!(dir.read_stats::<ActorStats>(&actor_live(3)).unwrap(), None, "no such file yet");
+        // A file whose writer spelled a field otherwise does not read as this type.
+        std::fs::write(
+            dir.stats().join("curriculum.json"),
+            r#"{"episodes": 3, "tasks_issued": 3, "proposed": {}, "tc": 0, "decision_steps": 9, "acl_phase": false, "first_task_passed": null}"#,
+        )
+        .unwrap();
+        let err = dir.read_stats::<CurriculumStats>("curriculum").unwrap_err().to_string();
+        assert!(err.contains("curriculum.json") && err.contains("tc"), "{err}");
+        let _ = std::fs::remove_dir_all(&root);
+    }
+}

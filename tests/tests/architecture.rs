@@ -1,0 +1,132 @@
+//! The code's shape, checked: no module circles inside a crate.
+//!
+//! Within each library crate, module A depends on module B when A's code (outside
+//! comments and its `#[cfg(test)]` part) names `crate::B`; a module's submodules count
+//! as the module. A circle (A → B → … → A) means neither can be read, tested or moved
+//! without the other: one of them owns something that belongs to the other, or to a
+//! third module below both. Binaries (`src/bin/`, `main.rs`) are wiring, not checked.
+
+use std::collections::{BTreeMap, BTreeSet};
+use std::path::Path;
+
+use pednav_tests::workspace_root;
+
+/// The workspace members with a `src/` folder.
+const CRATES: [&str; 11] = [
+    "shared/config",
+    "shared/sim",
+    "shared/nets",
+    "shared/policy",
+    "shared/runtime",
+    "curriculum-service",
+    "learner",
+    "actor",
+    "shared/experiments",
+    "deploy/pednav-run",
+    "tests",
+];
+
+fn rust_files(dir: &Path, out: &mut Vec<std::path::PathBuf>) {
+    for entry in std::fs::read_dir(dir).into_iter().flatten().flatten() {
+        let p = entry.path();
+        if p.is_dir() {
+            rust_files(&p, out);
+        } else if p.extension().is_some_and(|e| e == "rs") {
+            out.push(p);
+        }
+    }
+}
+
+/// `crate::X` names in `code` (comments and the `#[cfg(test)]` part cut off).
+fn crate_references(code: &str) -> BTreeSet<String> {
+    let code = code.split("#[cfg(test)]").next().unwrap_or_default();
+    let mut refs = BTreeSet::new();
+    for line in code.lines() {
+        let line = line.split("//").next().unwrap_or_default();
+        let mut rest = line;
+        while let Some(i) = rest.find("crate::") {
+            let name: String = rest[i + 7..].chars().take_while(|c| c.is_ascii_alphanumeric() || *c == '_').collect();
+            if !name.is_empty() {
+                refs.insert(name);
+            }
+            rest = &rest[i + 7..];
+        }
+    }
+    refs
+}
+
+/// The module graph of one crate: top-level module → the modules it names.
+fn module_graph(src: &Path) -> BTreeMap<String, BTreeSet<String>> {
+    let mut files = Vec::new();
+    rust_files(src, &mut files);
+    let mut graph: BTreeMap<String, BTreeSet<String>> = BTreeMap::new();
+    for f in files {
+        let rel = f.strip_prefix(src).unwrap().to_string_lossy().to_string();
+        if rel.starts_with("bin/") || rel == "lib.rs" || rel == "main.rs" {
+            continue;
+        }
+        let top = rel.split('/').next().unwrap().trim_end_matches(".rs").to_string();
+        let refs = crate_references(&std::fs::read_to_string(&f).unwrap());
+        graph.entry(top.clone()).or_default().extend(refs.into_iter().filter(|r| *r != top));
+    }
+    graph
+}
+
+/// One circle of `graph`, if it has any.
+fn find_circle(graph: &BTreeMap<String, BTreeSet<String>>) -> Option<Vec<String>> {
+    fn visit(
+        n: &str,
+        graph: &BTreeMap<String, BTreeSet<String>>,
+        path: &mut Vec<String>,
+        done: &mut BTreeSet<String>,
+    ) -> Option<Vec<String>> {
+        if let Some(i) = path.iter().position(|p| p == n) {
+            let mut circle = path[i..].to_vec();
+            circle.push(n.to_string());
+            return Some(circle);
+        }
+        if done.contains(n) {
+            return None;
+        }
+        path.push(n.to_string());
+        for m in graph.get(n).into_iter().flatten().filter(|m| graph.contains_key(*m)) {
+            if let Some(c) = visit(m, graph, path, done) {
+                return Some(c);
+            }
+        }
+        path.pop();
+        done.insert(n.to_string());
+        None
+    }
+    let mut done = BTreeSet::new();
+    graph.keys().find_map(|n| visit(n, graph, &mut Vec::new(), &mut done))
+}
+
+#[test]
+fn no_crate_has_a_module_circle() {
+    let mut circles = Vec::new();
+    for krate in CRATES {
+        let src = workspace_root().join(krate).join("src");
+        if let Some(c) = find_circle(&module_graph(&src)) {
+            circles.push(format!("{krate}: {}", c.join(" → ")));
+        }
+    }
+    assert!(circles.is_empty(), "module circles:\n{}", circles.join("\n"));
+}
+
+#[test]
+fn the_check_finds_a_circle_when_there_is_one() {
+    let graph: BTreeMap<String, BTreeSet<String>> = [
+        ("dsac", vec!["replay", "checkpoint"]),
+        ("checkpoint", vec!["dsac"]),
+        ("replay", vec!["error"]),
+        ("error", vec![]),
+    ]
+    .into_iter()
+    .map(|(k, v)| (k.to_string(), v.into_iter().map(String::from).collect()))
+    .collect();
+    assert_eq!(find_circle(&graph), Some(vec!["checkpoint".into(), "dsac".into(), "checkpoint".into()]));
+    let refs =
+        crate_references("use crate::dsac::Dsac; // crate::ignored\n/// [`crate::doc`]\nfn f() { crate::error::x() }");
+    assert_eq!(refs, ["dsac", "error"].into_iter().map(String::from).collect());
+}
