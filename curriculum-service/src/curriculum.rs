@@ -250,7 +250,7 @@ mod tests {
     fn state_round_trip_continues_identically() {
         let mut a = curriculum(Variant::NavAclPlusHard);
         for k in 0..35 {
-            a.report(&episode(Category::First, vec![-0.1; 3 + k % 4], false)).unwrap();
+            a.report(&episode(Category::First, vec![0.5; 3 + k % 4], false)).unwrap();
         }
         assert!(a.scheduler().in_acl_phase(), "30 good first-task returns open the gate");
         let saved = a.state().unwrap();

@@ -45,13 +45,13 @@ fn navacl_plus_stays_on_the_first_task_until_the_gate_passes() {
         assert_eq!((p.pose, p.category), (scene.first_task(), Category::First));
         s.record_episode(p.category, 20, 0.0);
     }
-    // A bad 30th episode: mean = -800/30 ≈ -26.7 < -25, still closed.
+    // A bad 30th episode: mean = -800/30 ≈ -26.7 below the threshold (0), still closed.
     let p = s.propose(&mut DistancePredictor).unwrap();
     assert_eq!(p.category, Category::First);
     s.record_episode(p.category, 8000, -800.0);
     assert!(!s.in_acl_phase());
     // Good episodes push the bad one out: it is the oldest entry after 29 more and
-    // leaves with the 30th, which opens the gate (mean 0 ≥ -25).
+    // leaves with the 30th, which opens the gate (mean 0 ≥ 0).
     for _ in 0..30 {
         let p = s.propose(&mut DistancePredictor).unwrap();
         assert_eq!(p.category, Category::First);

@@ -57,7 +57,13 @@ pub struct CurriculumConfig {
     pub random_prob: f32,
     /// PassFirstTask window: number of most recent first-task returns averaged. Paper: 30.
     pub pass_window: usize,
-    /// PassFirstTask threshold on that mean discounted return. Paper: −25.
+    /// PassFirstTask threshold on that mean discounted return. Paper: −25; default 0,
+    /// calibrated for the reference scene's first task (6 m from the goal, facing it):
+    /// there the networks a run starts with walk on and arrive, and their best
+    /// 30-episode means reached −9.5 (state) and −12 (pixels) when fast episodes report
+    /// first, above the paper's −25; a policy that learned the task makes ≈ +5 to +8
+    /// (the oracle +8.5). Runs trained before the calibration ran at −25 and say so in
+    /// their `config.toml`.
     pub pass_threshold: f32,
     /// Candidate tasks drawn to fit μ and σ (adaptive filtering). Table IV: 4096.
     pub candidates: usize,
@@ -93,7 +99,7 @@ impl Default for CurriculumConfig {
             hard_max_prob: 0.2,
             random_prob: 0.2,
             pass_window: 30,
-            pass_threshold: -25.0,
+            pass_threshold: 0.0,
             candidates: 4096,
             enlarged_region: false,
             train_every_episodes: 10,
