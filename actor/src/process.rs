@@ -17,6 +17,7 @@ use candle_core::Device;
 use pednav_nets::DsacNets;
 use pednav_policy::{ActingPolicy, Sampling};
 use pednav_runtime::channels::{EpisodeReporter, Observation, StepWriter, TaskRequester};
+use pednav_runtime::columns::actor as col;
 use pednav_runtime::ipc::HeartbeatPublisher;
 use pednav_runtime::messages::{EpisodeHeader, EpisodePoint, Faults, Heartbeat, StepHeader, process_kind, step_flags};
 use pednav_runtime::stats::{self, ActorStats};
@@ -125,8 +126,7 @@ impl ActorProcess {
     pub fn open(dir: RunDir, cfg: RunConfig, opts: ActorOptions, stop: StopFlag) -> Result<ActorProcess> {
         let name = format!("actor-{}", opts.actor);
         let incarnation = dir.next_incarnation(&name)?;
-        let seed =
-            cfg.seed ^ (opts.actor as u64 + 1).wrapping_mul(0x9E37_79B9_7F4A_7C15) ^ ((incarnation as u64) << 48);
+        let seed = pednav_config::rng::actor_seed(cfg.seed, opts.actor, incarnation);
         let m = opts.envs.unwrap_or(cfg.runtime.envs_per_actor);
         if m == 0 || m > 4096 {
             bail!("--envs must be 1 … 4096, got {m}");
@@ -158,7 +158,7 @@ impl ActorProcess {
             .then(|| RandomPolicy::from_rng(ChaCha8Rng::seed_from_u64(rng.random())));
         Ok(ActorProcess {
             pixels: cfg.sim.obs_mode == ObsMode::Pixels,
-            send_state: cfg.sim.obs_mode != ObsMode::Pixels || cfg.dsac.state_aux_weight > 0.0,
+            send_state: cfg.sim.obs_mode != ObsMode::Pixels || cfg.dsac.builds_state_head(),
             actor: opts.actor,
             incarnation,
             envs,
@@ -385,15 +385,16 @@ impl ActorProcess {
         self.metrics.log_optional(
             c.steps,
             &[
-                ("steps_per_s", Some(rate)),
-                ("episodes", Some(c.episodes as f64)),
-                ("policy_version", Some(version as f64)),
-                ("recent_return", recent.map(f64::from)),
-                ("inference_ms_per_step", Some(1e3 * t.infer / n)),
-                ("sim_ms_per_step", Some(1e3 * t.sim / n)),
-                ("render_send_ms_per_step", Some(1e3 * t.send / n)),
+                (col::STEPS_PER_S, Some(rate)),
+                (col::EPISODES, Some(c.episodes as f64)),
+                (col::POLICY_VERSION, Some(version as f64)),
+                (col::RECENT_RETURN, recent.map(f64::from)),
+                (col::INFERENCE_MS_PER_STEP, Some(1e3 * t.infer / n)),
+                (col::SIM_MS_PER_STEP, Some(1e3 * t.sim / n)),
+                (col::RENDER_SEND_MS_PER_STEP, Some(1e3 * t.send / n)),
             ],
         )?;
+        self.health.metrics(&self.metrics);
         let _ = self.heartbeat.send_copy(Heartbeat {
             kind: process_kind::ACTOR,
             id: self.actor,

@@ -89,7 +89,7 @@ impl Curriculum {
             Variant::FixedStart => None,
         };
         let net = target
-            .map(|t| TaskValueNet::new(cfg.net.clone(), t, seed ^ 0x6E65_7477))
+            .map(|t| TaskValueNet::new(cfg.net.clone(), t, pednav_config::rng::task_net_seed(seed)))
             .transpose()
             .map_err(|e| CurriculumError::Net(e.to_string()))?;
         Ok(Curriculum {

@@ -97,7 +97,7 @@ pub fn compare_update(
         let mut dsac = Dsac::new(cfg, nets, device, seed)?;
         let rc = ReplayConfig { nonterminal_capacity: 4 * cfg.batch_size, terminal_capacity: cfg.batch_size };
         let mut replay = DualReplay::new(&rc, kind, nets.history, device)?;
-        if cfg.state_aux_weight > 0.0 {
+        if cfg.builds_state_head() {
             replay = replay.with_state_targets(nets.state_dim)?;
         }
         let mut rng = ChaCha8Rng::seed_from_u64(seed);

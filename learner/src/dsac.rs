@@ -142,20 +142,14 @@ impl Dsac {
     /// Fresh networks and optimisers from `seed`.
     pub fn new(cfg: &DsacConfig, nets_cfg: &NetsConfig, device: &Device, seed: u64) -> Result<Dsac> {
         cfg.validate()?;
-        let mut nets = DsacNets::new(nets_cfg, device, seed)?;
-        if cfg.twin_critics {
-            nets = nets.with_twin_critic(seed)?;
-        }
-        if cfg.state_aux_weight > 0.0 {
-            nets = nets.with_state_head(nets_cfg.state_dim, seed)?;
-        }
+        let nets = DsacNets::for_learner(nets_cfg, cfg, device, seed)?;
         let mut log_alpha = ParamStore::new(LOG_ALPHA, device);
         log_alpha.insert(LOG_ALPHA, Tensor::new(&[cfg.initial_alpha.ln() as f32], device)?)?;
         let opt = |store: &ParamStore, lr: f64| {
             AdamW::new(store, AdamWConfig { max_grad_norm: cfg.max_grad_norm, ..AdamWConfig::with_lr(lr) })
         };
         let mut rng = ChaCha8Rng::seed_from_u64(seed);
-        rng.set_stream(100);
+        rng.set_stream(pednav_config::rng::stream::LEARNER_UPDATE);
         Ok(Dsac {
             opt_policy: opt(&nets.policy.store, cfg.lr_policy)?,
             opt_fraction: opt(&nets.fraction.store, cfg.lr_fraction)?,

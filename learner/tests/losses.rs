@@ -1,15 +1,13 @@
-//! Losses, the temperature update and checkpoints against hand-computed values.
+//! Losses (quantile Huber, FQF fractions, twin critics, state prediction), the
+//! temperature update and the non-finite guard against hand-computed values.
 
 mod common;
-use common::{all_values, small};
+use common::{small, state_batch};
 
 use candle_core::{Device, Tensor};
-use pednav_learner::{
-    Batch, Dsac, DsacConfig, DualReplay, Frame, FrameKind, ReplayConfig, Step, acting_files, agent_files,
-    fraction_gradient, load_acting, load_agent, load_checkpoint, quantile_huber_loss, save_checkpoint, smaller_mean,
-};
-use pednav_nets::{DsacNets, NetsConfig, Obs};
-use rand::{Rng, SeedableRng};
+use pednav_learner::{Dsac, DsacConfig, fraction_gradient, quantile_huber_loss, smaller_mean};
+use pednav_nets::NetsConfig;
+use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 
 fn t2(rows: &[&[f32]]) -> Tensor {
@@ -134,59 +132,6 @@ fn the_twin_critic_trains_a_shared_encoder() {
     assert_eq!(fraction(&single), fraction(&twin));
 }
 
-/// A batch of random 4-float states, with 4-float state targets (s₀ − s₁, 2·s₃, s₂,
-/// 0.5) for the state-prediction loss (sampling them draws nothing from `rng`).
-fn state_batch(b: usize, rng: &mut ChaCha8Rng) -> Batch {
-    let cfg = ReplayConfig { nonterminal_capacity: 1000, terminal_capacity: 100 };
-    let mut replay =
-        DualReplay::new(&cfg, FrameKind::State { dim: 4 }, 1, &Device::Cpu).unwrap().with_state_targets(4).unwrap();
-    for ep in 0..20 {
-        for t in 0..10 {
-            let s: [f32; 4] = std::array::from_fn(|_| rng.random_range(-1.0..1.0));
-            let target = [s[0] - s[1], 2.0 * s[3], s[2], 0.5];
-            let a: [f32; 3] = std::array::from_fn(|_| rng.random_range(-1.0..1.0));
-            replay
-                .push(&Step {
-                    stream: 0,
-                    first: t == 0,
-                    frame: Frame::State(&s),
-                    action: a,
-                    reward: rng.random_range(-1.0..1.0),
-                    terminal: t == 9 && ep % 2 == 0,
-                    state_target: Some(&target),
-                })
-                .unwrap();
-        }
-    }
-    replay.sample(b, rng).unwrap()
-}
-
-/// The device check's comparison: the same device twice gives identical losses and
-/// weights and passes; each tolerance fails just beyond its bound (lr 3e-4 → two Adam
-/// steps 6e-4 + 1e-5).
-#[test]
-fn one_update_on_two_devices_is_compared_weight_by_weight() {
-    let (mut cfg, nets) = small();
-    (cfg.lr_policy, cfg.lr_quantile, cfg.lr_fraction, cfg.lr_alpha) = (3e-4, 3e-4, 1e-4, 3e-4);
-    let same = pednav_learner::compare_update(&cfg, &nets, FrameKind::State { dim: 4 }, &Device::Cpu, &Device::Cpu, 3)
-        .unwrap();
-    assert!(same.passes() && same.weights > 1000, "{same:?}");
-    assert_eq!((same.loss_rel_diff, same.weight_max_diff, same.weight_p999_diff), (0.0, 0.0, 0.0));
-    assert_eq!(same.a.critic_loss, same.b.critic_loss);
-    assert_eq!(same.max_lr, 3e-4);
-    for (field, ok, bad) in [("losses", 0.9e-3, 1.1e-3), ("p999", 0.9e-5, 1.1e-5), ("max", 6.09e-4, 6.11e-4)] {
-        for (value, passes) in [(ok, true), (bad, false)] {
-            let mut c = same.clone();
-            match field {
-                "losses" => c.loss_rel_diff = value,
-                "p999" => c.weight_p999_diff = value,
-                _ => c.weight_max_diff = value,
-            }
-            assert_eq!(c.passes(), passes, "{field} = {value}");
-        }
-    }
-}
-
 #[test]
 fn temperature_moves_toward_the_target_entropy_by_one_adam_step() {
     let mut rng = ChaCha8Rng::seed_from_u64(4);
@@ -272,155 +217,4 @@ fn state_prediction_loss_by_hand_and_it_shapes_the_critic_encoder() {
     bare.state_target = None;
     let err = aux.update(&bare).unwrap_err().to_string();
     assert!(err.contains("state targets"), "{err}");
-}
-
-#[test]
-fn checkpoints_round_trip_bit_exactly_and_bad_ones_change_nothing() {
-    let dir = std::env::temp_dir().join(format!("pednav-ckpt-test-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&dir);
-    let mut rng = ChaCha8Rng::seed_from_u64(6);
-    let (cfg, nets) = small();
-    let mut a = Dsac::new(&cfg, &nets, &Device::Cpu, 1).unwrap();
-    for _ in 0..3 {
-        a.update(&state_batch(16, &mut rng)).unwrap();
-    }
-    let ck = dir.join("ckpt");
-    save_checkpoint(&ck, &mut a, None, serde_json::json!({"env_steps": 123})).unwrap();
-    let mut b = Dsac::new(&cfg, &nets, &Device::Cpu, 2).unwrap();
-    let meta = load_checkpoint(&ck, &mut b).unwrap();
-    assert_eq!(meta.extra["env_steps"], 123);
-    assert_eq!(all_values(&a), all_values(&b));
-    assert_eq!((a.updates, a.rng.clone()), (b.updates, b.rng.clone()));
-    // Continuing both gives identical results: moments, counters and RNG were restored.
-    let batch = state_batch(16, &mut rng);
-    let (sa, sb) = (a.update(&batch).unwrap(), b.update(&batch).unwrap());
-    assert_eq!(sa, sb);
-    assert_eq!(all_values(&a), all_values(&b));
-
-    // Corrupt one byte of a weight file: checksum error naming the file, nothing changed.
-    let mut c = Dsac::new(&cfg, &nets, &Device::Cpu, 3).unwrap();
-    let untouched = all_values(&c);
-    let file = ck.join("quantile.safetensors");
-    let mut bytes = std::fs::read(&file).unwrap();
-    let last = bytes.len() - 1;
-    bytes[last] ^= 0xff;
-    std::fs::write(&file, &bytes).unwrap();
-    let err = load_checkpoint(&ck, &mut c).unwrap_err().to_string();
-    assert!(err.contains("quantile.safetensors") && err.contains("checksum"), "{err}");
-    assert_eq!(untouched, all_values(&c));
-
-    // A checkpoint of another architecture: a clear error, nothing changed.
-    save_checkpoint(&ck, &mut a, None, serde_json::Value::Null).unwrap();
-    let other = NetsConfig { hidden: 16, ..nets.clone() };
-    let mut d = Dsac::new(&cfg, &other, &Device::Cpu, 3).unwrap();
-    let untouched = all_values(&d);
-    let err = load_checkpoint(&ck, &mut d).unwrap_err().to_string();
-    assert!(err.contains("written for networks"), "{err}");
-    assert_eq!(untouched, all_values(&d));
-    let err = load_checkpoint(&dir.join("missing"), &mut d).unwrap_err().to_string();
-    assert!(err.contains("is this a checkpoint directory"), "{err}");
-
-    // Twin critics round-trip too (second critic, its target and its moments), and a
-    // checkpoint with or without the twin refuses a learner configured the other way.
-    let twin_cfg = DsacConfig { twin_critics: true, ..cfg.clone() };
-    let mut e = Dsac::new(&twin_cfg, &nets, &Device::Cpu, 4).unwrap();
-    e.update(&state_batch(16, &mut rng)).unwrap();
-    let twin_ck = dir.join("twin");
-    save_checkpoint(&twin_ck, &mut e, None, serde_json::Value::Null).unwrap();
-    let mut f = Dsac::new(&twin_cfg, &nets, &Device::Cpu, 5).unwrap();
-    load_checkpoint(&twin_ck, &mut f).unwrap();
-    assert_eq!(all_values(&e), all_values(&f));
-    let batch = state_batch(16, &mut rng);
-    assert_eq!(e.update(&batch).unwrap(), f.update(&batch).unwrap());
-    assert_eq!(all_values(&e), all_values(&f));
-    let mut g = Dsac::new(&cfg, &nets, &Device::Cpu, 6).unwrap();
-    let untouched = all_values(&g);
-    let err = load_checkpoint(&twin_ck, &mut g).unwrap_err().to_string();
-    assert_eq!(untouched, all_values(&g));
-    assert!(err.contains("has a twin critic") && err.contains("twin_critics"), "{err}");
-    let err = load_checkpoint(&ck, &mut f).unwrap_err().to_string();
-    assert!(err.contains("has no twin critic"), "{err}");
-
-    // The state-prediction head and its moments round-trip; a learner configured the
-    // other way is refused naming the setting.
-    let aux_cfg = DsacConfig { state_aux_weight: 1.0, ..cfg.clone() };
-    let mut h = Dsac::new(&aux_cfg, &nets, &Device::Cpu, 4).unwrap();
-    h.update(&state_batch(16, &mut rng)).unwrap();
-    let aux_ck = dir.join("aux");
-    save_checkpoint(&aux_ck, &mut h, None, serde_json::Value::Null).unwrap();
-    assert!(aux_ck.join("state_head.safetensors").exists());
-    let mut i = Dsac::new(&aux_cfg, &nets, &Device::Cpu, 5).unwrap();
-    load_checkpoint(&aux_ck, &mut i).unwrap();
-    assert_eq!(all_values(&h), all_values(&i));
-    let batch = state_batch(16, &mut rng);
-    assert_eq!(h.update(&batch).unwrap(), i.update(&batch).unwrap());
-    let mut j = Dsac::new(&cfg, &nets, &Device::Cpu, 6).unwrap();
-    let err = load_checkpoint(&aux_ck, &mut j).unwrap_err().to_string();
-    assert!(err.contains("state-prediction head") && err.contains("state_aux_weight"), "{err}");
-    let err = load_checkpoint(&ck, &mut i).unwrap_err().to_string();
-    assert!(err.contains("has no state-prediction head"), "{err}");
-
-    // What a results folder keeps: state.json and the acting networks' files load the
-    // policy into fresh networks; a damaged copy is refused and changes nothing.
-    let kept = dir.join("results");
-    std::fs::create_dir_all(&kept).unwrap();
-    let files = acting_files(&a.nets);
-    assert_eq!(files, ["state.json", "policy.safetensors"]);
-    for file in &files {
-        std::fs::copy(ck.join(file), kept.join(file)).unwrap();
-    }
-    let policy = |n: &DsacNets| -> Vec<Vec<f32>> {
-        n.policy.store.vars().iter().map(|(_, v)| v.flatten_all().unwrap().to_vec1().unwrap()).collect()
-    };
-    let fresh = DsacNets::new(&nets, &Device::Cpu, 9).unwrap();
-    let untouched = policy(&fresh);
-    let mut bytes = std::fs::read(kept.join("policy.safetensors")).unwrap();
-    bytes[100] ^= 1;
-    std::fs::write(kept.join("policy.safetensors"), &bytes).unwrap();
-    assert!(load_acting(&kept, &fresh).unwrap_err().to_string().contains("checksum"));
-    assert_eq!(policy(&fresh), untouched);
-    bytes[100] ^= 1;
-    std::fs::write(kept.join("policy.safetensors"), &bytes).unwrap();
-    load_acting(&kept, &fresh).unwrap();
-    assert_eq!(policy(&fresh), policy(&a.nets));
-
-    // What a diagnosed results folder keeps: the online networks and α of the twin
-    // checkpoint load them all (Q needs the fraction net and both critics); without
-    // one of the files the load names it.
-    let diag = dir.join("diagnosed");
-    std::fs::create_dir_all(&diag).unwrap();
-    let files = agent_files(&e.nets);
-    assert_eq!(files.len(), 6, "state, policy, fraction, quantile, quantile2, log α: {files:?}");
-    for file in &files {
-        std::fs::copy(twin_ck.join(file), diag.join(file)).unwrap();
-    }
-    let agent = load_agent(&diag, &Device::Cpu).unwrap();
-    let mut e = Dsac::new(&twin_cfg, &nets, &Device::Cpu, 7).unwrap();
-    load_checkpoint(&twin_ck, &mut e).unwrap();
-    let values = |s: &pednav_nets::ParamStore| -> Vec<Vec<f32>> {
-        s.vars().iter().map(|(_, v)| v.flatten_all().unwrap().to_vec1().unwrap()).collect()
-    };
-    assert_eq!(values(&agent.nets.fraction.store), values(&e.nets.fraction.store));
-    assert_eq!(values(&agent.nets.quantile.store), values(&e.nets.quantile.store));
-    let (twin_a, twin_e) = (agent.nets.twin.as_ref().unwrap(), e.nets.twin.as_ref().unwrap());
-    assert_eq!(values(&twin_a.quantile.store), values(&twin_e.quantile.store));
-    assert!((agent.alpha - e.alpha().unwrap()).abs() < 1e-6, "α {} vs {}", agent.alpha, e.alpha().unwrap());
-    std::fs::remove_file(diag.join("fraction.safetensors")).unwrap();
-    let err = load_agent(&diag, &Device::Cpu).err().expect("a missing file is refused").to_string();
-    assert!(err.contains("fraction.safetensors"), "{err}");
-    let _ = std::fs::remove_dir_all(&dir);
-}
-
-#[test]
-fn acting_is_seeded_and_deterministic_mode_is_tanh_of_the_mean() {
-    let (cfg, nets) = small();
-    let obs = Obs::State(Tensor::new(&[[0.1f32, -0.2, 0.3, 0.0]], &Device::Cpu).unwrap());
-    let mut a = Dsac::new(&cfg, &nets, &Device::Cpu, 1).unwrap();
-    let mut b = Dsac::new(&cfg, &nets, &Device::Cpu, 1).unwrap();
-    let (x, _) = a.act(&obs, false).unwrap();
-    let (y, _) = b.act(&obs, false).unwrap();
-    assert_eq!(x.to_vec2::<f32>().unwrap(), y.to_vec2::<f32>().unwrap());
-    let (m1, _) = a.act(&obs, true).unwrap();
-    let (m2, _) = a.act(&obs, true).unwrap();
-    assert_eq!(m1.to_vec2::<f32>().unwrap(), m2.to_vec2::<f32>().unwrap());
 }

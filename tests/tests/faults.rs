@@ -153,8 +153,8 @@ fn the_cause_of_a_death_is_named_whatever_rust_backtrace_says() {
     let tail = &text[text.rfind("Error: the run stopped").expect("the launcher's final error")..];
     assert!(tail.contains("learner died 6 times") && tail.contains("policy.safetensors"), "{tail}");
     assert!(!tail.contains("Stack backtrace") && !tail.contains("std::rt::lang_start"), "no backtrace frames: {tail}");
-    let records = pednav_runtime::RunDir::new(&run_dir).read_restarts();
-    assert!(
-        records.len() >= 5 && records.iter().all(|r| r.process == "learner" && r.cause.contains("policy.safetensors"))
-    );
+    // The learner's records (an actor restarted meanwhile would add its own).
+    let records: Vec<_> =
+        pednav_runtime::RunDir::new(&run_dir).read_restarts().into_iter().filter(|r| r.process == "learner").collect();
+    assert!(records.len() >= 5 && records.iter().all(|r| r.cause.contains("policy.safetensors")), "{records:?}");
 }

@@ -11,7 +11,7 @@
 //!   larger than the budget), so the figure is the actors' + IPC's + replay's.
 //! - `soak`: a long smoke-config run whose learner, curriculum service and actors
 //!   are SIGKILLed at seeded random times; restarts, steps lost, whether training
-//!   continued (`soak.rs`; not in CI).
+//!   continued (`soak/`; not in CI).
 
 use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
@@ -285,7 +285,8 @@ fn system(actors: &[u32], envs: usize, steps: u64, inference: bool) -> Result<()
             let mut lines = csv.lines();
             let header: Vec<&str> = lines.next().context("empty learner metrics")?.split(',').collect();
             let col = |name: &str| header.iter().position(|h| *h == name).with_context(|| format!("no {name} column"));
-            let (c_step, c_time) = (col("step")?, col("elapsed_s")?);
+            let (c_step, c_time) =
+                (col(pednav_runtime::columns::STEP)?, col(pednav_runtime::columns::learner::ELAPSED_S)?);
             let rows: Vec<(f64, f64)> = lines
                 .filter_map(|l| {
                     let v: Vec<&str> = l.split(',').collect();

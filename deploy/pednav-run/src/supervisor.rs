@@ -49,6 +49,11 @@ struct Proc {
     last_cause: Option<(String, u32)>,
     /// When a process that died of the same cause again is started (back-off).
     restart_at: Option<Instant>,
+    /// Where its log ended when it was last started: its death's cause is read from
+    /// there on (the log holds every run of the process).
+    log_start: u64,
+    /// When it was last started.
+    started: Option<Instant>,
 }
 
 impl Proc {
@@ -79,6 +84,10 @@ impl Proc {
     /// repeats (a fault that a restart alone does not fix); returns the delay and the
     /// number of deaths in a row with that error.
     fn backoff(&mut self, headline: &str) -> (Duration, u32) {
+        // A run that lasted longer than the restart window was healthy: start counting afresh.
+        if self.started.is_some_and(|t| t.elapsed() > RESTART_WINDOW) {
+            self.last_cause = None;
+        }
         let repeats = match &self.last_cause {
             Some((h, n)) if h == headline => n + 1,
             _ => 1,
@@ -93,6 +102,8 @@ impl Proc {
     }
 
     fn start(&mut self) -> Result<()> {
+        self.log_start = std::fs::metadata(&self.log).map_or(0, |m| m.len());
+        self.started = Some(Instant::now());
         let log = OpenOptions::new()
             .create(true)
             .append(true)
@@ -142,9 +153,14 @@ impl Proc {
         self.child.is_some()
     }
 
-    /// Why the process ended, from its log ([`ExitCause`]).
+    /// Why the process ended, from what its last run wrote to its log ([`ExitCause`]).
     fn exit_cause(&self) -> ExitCause {
-        ExitCause::parse(&std::fs::read_to_string(&self.log).unwrap_or_default())
+        use std::io::{Read, Seek, SeekFrom};
+        let mut text = String::new();
+        if let Ok(mut f) = std::fs::File::open(&self.log) {
+            let _ = f.seek(SeekFrom::Start(self.log_start)).and_then(|_| f.read_to_string(&mut text));
+        }
+        ExitCause::parse(&text)
     }
 }
 
@@ -238,6 +254,8 @@ impl Supervisor {
             watch_hang: heartbeat.0 != process_kind::ACTOR,
             last_cause: None,
             restart_at: None,
+            log_start: 0,
+            started: None,
         };
         let mut curriculum = mk(
             "curriculum".into(),
@@ -522,6 +540,8 @@ mod tests {
             watch_hang: true,
             last_cause: None,
             restart_at: None,
+            log_start: 0,
+            started: None,
         }
     }
 

@@ -89,6 +89,20 @@ impl Default for DsacConfig {
 }
 
 impl DsacConfig {
+    /// Whether the learner builds a second critic and its target (twin critics). With
+    /// [`DsacConfig::builds_state_head`], the one rule for which networks a learner
+    /// has beyond the paper's three: the learner, the memory estimate and the
+    /// checkpoint check all ask here.
+    pub fn builds_twin_critic(&self) -> bool {
+        self.twin_critics
+    }
+
+    /// Whether the learner builds the state-prediction head (and the replay keeps
+    /// state targets): only with a positive `state_aux_weight`.
+    pub fn builds_state_head(&self) -> bool {
+        self.state_aux_weight > 0.0
+    }
+
     /// Reject impossible values, naming the field.
     // `!(x > 0.0)` on purpose: it also rejects NaN.
     #[allow(clippy::neg_cmp_op_on_partial_ord)]

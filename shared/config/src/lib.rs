@@ -5,7 +5,8 @@
 //!   [`ReplayFootprint`] (the bytes the replay holds per step and per terminal entry);
 //! - [`curriculum`]: the `[curriculum]` section, its [`Variant`] and the task-value
 //!   net's [`TaskNetConfig`];
-//! - [`category`]: the curriculum's task [`Category`] and its wire code.
+//! - [`category`]: the curriculum's task [`Category`] and its wire code;
+//! - [`rng`]: the random streams of a run's one seed, named once.
 //!
 //! Invariant: this crate is a leaf — it depends on no other pednav crate — so the
 //! learner, the curriculum and the runtime (and through it the launcher's `check`)
@@ -18,6 +19,7 @@ pub mod curriculum;
 pub mod dsac;
 pub mod error;
 pub mod replay;
+pub mod rng;
 
 pub use category::Category;
 pub use curriculum::{CurriculumConfig, TaskNetConfig, Variant};

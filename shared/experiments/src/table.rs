@@ -256,7 +256,6 @@ impl EvalSummary {
     }
 }
 
-/// The share of the gap between a random walk and the oracle that `value` closes:
 /// Mean and sample standard deviation (n − 1 in the denominator; 0 for fewer than
 /// two values, where it is undefined — tables then show the mean alone with n = 1).
 pub fn mean_and_sample_std(v: &[f64]) -> (f64, f64) {
@@ -267,6 +266,7 @@ pub fn mean_and_sample_std(v: &[f64]) -> (f64, f64) {
     (m, (v.iter().map(|x| (x - m).powi(2)).sum::<f64>() / (v.len() - 1) as f64).sqrt())
 }
 
+/// The share of the gap between a random walk and the oracle that `value` closes:
 /// 0 at the random walk's return, 1 at the oracle's.
 pub fn gap_closed(value: f64, random: f64, oracle: f64) -> f64 {
     (value - random) / (oracle - random)

@@ -13,6 +13,8 @@
 //! state-prediction auxiliary loss trains that encoder) and is never used for acting.
 
 use candle_core::{Device, Tensor};
+use pednav_config::DsacConfig;
+use pednav_config::rng::stream;
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 
@@ -106,12 +108,27 @@ impl DsacNets {
             r.set_stream(stream);
             r
         };
-        let policy = PolicyNet::new(cfg, own, feature_dim, device, &mut rng(1))?;
-        let fraction = FractionNet::new(cfg, own, feature_dim, device, &mut rng(2))?;
-        let quantile = QuantileNet::new("quantile", cfg, true, feature_dim, device, &mut rng(3))?;
-        let target = QuantileNet::new("target_quantile", cfg, true, feature_dim, device, &mut rng(3))?;
+        let policy = PolicyNet::new(cfg, own, feature_dim, device, &mut rng(stream::POLICY_INIT))?;
+        let fraction = FractionNet::new(cfg, own, feature_dim, device, &mut rng(stream::FRACTION_INIT))?;
+        let quantile = QuantileNet::new("quantile", cfg, true, feature_dim, device, &mut rng(stream::QUANTILE_INIT))?;
+        let target =
+            QuantileNet::new("target_quantile", cfg, true, feature_dim, device, &mut rng(stream::QUANTILE_INIT))?;
         target.store.copy_from(&quantile.store)?;
         Ok(DsacNets { cfg: cfg.clone(), policy, fraction, quantile, target, twin: None, state_head: None })
+    }
+
+    /// The networks a learner with `dsac` trains: [`DsacNets::new`], plus the second
+    /// critic and the state-prediction head when `dsac` asks for them
+    /// ([`DsacConfig::builds_twin_critic`], [`DsacConfig::builds_state_head`]).
+    pub fn for_learner(cfg: &NetsConfig, dsac: &DsacConfig, device: &Device, seed: u64) -> Result<DsacNets> {
+        let mut nets = DsacNets::new(cfg, device, seed)?;
+        if dsac.builds_twin_critic() {
+            nets = nets.with_twin_critic(seed)?;
+        }
+        if dsac.builds_state_head() {
+            nets = nets.with_state_head(cfg.state_dim, seed)?;
+        }
+        Ok(nets)
     }
 
     /// Add the second critic of twin critics (from its own stream of `seed`, so the
@@ -122,7 +139,7 @@ impl DsacNets {
         let device = self.quantile.store.device().clone();
         let rng = || {
             let mut r = ChaCha8Rng::seed_from_u64(seed);
-            r.set_stream(4);
+            r.set_stream(stream::TWIN_CRITIC_INIT);
             r
         };
         let quantile = QuantileNet::new("quantile2", &self.cfg, own, feature_dim, &device, &mut rng())?;
@@ -136,7 +153,7 @@ impl DsacNets {
     /// features (from its own stream of `seed`, so the other networks are unchanged).
     pub fn with_state_head(mut self, dim: usize, seed: u64) -> Result<DsacNets> {
         let mut rng = ChaCha8Rng::seed_from_u64(seed);
-        rng.set_stream(5);
+        rng.set_stream(stream::STATE_HEAD_INIT);
         let mut store = ParamStore::new("state_head", self.quantile.store.device());
         let layer = Dense::new(&mut store, "linear", feature_dim(&self.cfg), dim, &mut rng)?;
         self.state_head = Some(StateHead { store, layer });

@@ -26,7 +26,7 @@ use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 
 /// Stream of an episode's seed that the policy's sampling noise comes from.
-pub const NOISE_STREAM: u64 = 11;
+pub const NOISE_STREAM: u64 = pednav_config::rng::stream::ACTING_NOISE;
 
 /// How actions come from the policy's distribution.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]

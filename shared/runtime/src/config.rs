@@ -233,7 +233,7 @@ impl RunConfig {
                 }
             }
         }
-        if self.dsac.state_aux_weight > 0.0 && self.nets.state_dim != STATE_OBS_DIM {
+        if self.dsac.builds_state_head() && self.nets.state_dim != STATE_OBS_DIM {
             return bad(
                 "nets.state_dim",
                 self.nets.state_dim.to_string(),
@@ -325,7 +325,7 @@ impl RunConfig {
     /// net), derived from the run's one `seed` so that it differs from the learner's
     /// and the actors' streams; the Fig. 4 drawing restores a curriculum with it.
     pub fn curriculum_seed(&self) -> u64 {
-        self.seed ^ 0x6375_7272_6963_756c
+        pednav_config::rng::curriculum_seed(self.seed)
     }
 
     /// What the learner's replay stores per step: frames of `sim.image_size`² pixels,

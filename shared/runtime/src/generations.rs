@@ -14,8 +14,12 @@
 //! - the newest generation is replaced only by a complete, synced one, and becomes
 //!   the previous one only when it verified;
 //! - a step that fails (a full disk, a folder made read-only) ends the save with the
-//!   step and its error, leaves both generations as they were, and removes its own
-//!   partial generation so that it holds no space; the next save starts afresh.
+//!   step and its error and leaves the newest generation as it was before the save —
+//!   when the failure came after the newest had become the previous one, that move is
+//!   undone — or, when only the final sync of the folder failed, the new generation in
+//!   place (it is whole; its durability is what the error reports). The previous
+//!   generation may have been dropped already (it goes first). The partial new
+//!   generation is removed so that it holds no space; the next save starts afresh.
 //!
 //! The crash and fault tests drive the same steps: [`SaveFault::KillAfter`] stops a
 //! save as a kill would, [`SaveFault::FailAt`] makes one step fail with an I/O error.
@@ -91,7 +95,12 @@ impl Generations {
     ) -> Result<(), Halt> {
         let out = self.save_steps(steps, write, verify);
         if let Err(Halt::Failed { .. }) = &out {
-            // Best effort: a failed save must not keep the space it took.
+            // Best effort. Undo a rotation the failure interrupted (the newest moved to
+            // the previous place, the new one not moved in), then drop the partial
+            // generation so that a failed save keeps no space.
+            if !self.newest.exists() && self.previous.exists() && self.partial.exists() {
+                let _ = fs::rename(&self.previous, &self.newest);
+            }
             let _ =
                 if self.partial.is_dir() { fs::remove_dir_all(&self.partial) } else { fs::remove_file(&self.partial) };
         }
@@ -302,24 +311,29 @@ mod tests {
     }
 
     #[test]
-    fn a_failed_step_leaves_both_generations_and_no_partial_one() {
+    fn a_failed_step_keeps_the_newest_generation_and_no_partial_one() {
         let d = scratch("fail");
         let g = Generations::file(&d.join("state.json"));
         save_text(&g, "one", SaveFault::None).unwrap();
         save_text(&g, "two", SaveFault::None).unwrap();
-        // Every step of the next save, failing in turn with a full disk.
+        // Every step of the next save (write, drop the previous, newest → previous,
+        // new → newest, sync the folder), failing in turn with a full disk.
+        let read = |p: &Path| fs::read_to_string(p).ok();
         for k in 0..5 {
-            let err = save_text(&g, "three", SaveFault::FailAt(k, io::ErrorKind::StorageFull));
-            if let Err(Halt::Failed { step, error }) = err {
-                assert!(is_disk_full(&error), "step {k}: {step}: {error}");
-                assert!(!g.partial().exists(), "step {k}: the partial generation is removed");
-                let read = |p: &Path| fs::read_to_string(p).ok();
-                // Whatever failed, "two" is still loadable from one of the generations.
-                let (newest, prev) = (read(g.newest()), read(g.previous()));
-                assert!(newest.as_deref() == Some("two") || prev.as_deref() == Some("two"), "step {k}");
-                // The fault cleared, the next save succeeds.
-                save_text(&g, "two", SaveFault::None).unwrap();
-            }
+            let Err(Halt::Failed { step, error }) =
+                save_text(&g, "three", SaveFault::FailAt(k, io::ErrorKind::StorageFull))
+            else {
+                panic!("step {k}: the injected failure must fail the save");
+            };
+            assert!(is_disk_full(&error), "step {k}: {step}: {error}");
+            assert!(!g.partial().exists(), "step {k}: the partial generation is removed");
+            // Before the new generation is in place the newest stays what it was; a failed
+            // sync of the folder after it leaves the new one in place.
+            let want = if k < 4 { "two" } else { "three" };
+            assert_eq!(read(g.newest()).as_deref(), Some(want), "step {k}: {step}");
+            // The fault cleared, the next save succeeds.
+            save_text(&g, "two", SaveFault::None).unwrap();
+            assert_eq!(read(g.newest()).as_deref(), Some("two"));
         }
         save_text(&g, "four", SaveFault::None).unwrap();
         assert_eq!(fs::read_to_string(g.newest()).unwrap(), "four");

@@ -11,7 +11,7 @@
 //! - [`rundir`]: the run directory layout (resume, never overwrite);
 //! - [`generations`]: two-generation atomic saves (checkpoints, curriculum state)
 //!   that survive a kill or a full disk at any step;
-//! - [`metrics`]: CSV + TensorBoard scalars;
+//! - [`metrics`]: CSV + TensorBoard scalars, whose columns [`columns`] names once;
 //! - [`weights`]: the flat weights message;
 //! - [`signal`]: Ctrl-C / SIGTERM as a flag;
 //! - [`stats`]: the stats files each process writes and the soak and tests read;
@@ -21,6 +21,7 @@
 #![warn(missing_docs)]
 
 pub mod channels;
+pub mod columns;
 pub mod config;
 pub mod error;
 pub mod generations;

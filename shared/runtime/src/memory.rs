@@ -214,9 +214,9 @@ fn usable(machine: u64) -> u128 {
 
 impl RunConfig {
     /// State-target floats the learner's replay keeps per step (as the learner process
-    /// builds it: `nets.state_dim` when `dsac.state_aux_weight > 0`, else none).
+    /// builds it: `nets.state_dim` with a state head, else none).
     pub fn replay_state_target_dim(&self) -> usize {
-        if self.dsac.state_aux_weight > 0.0 { self.nets.state_dim } else { 0 }
+        if self.dsac.builds_state_head() { self.nets.state_dim } else { 0 }
     }
 
     /// The memory this run needs under `plan`, component by component (see the
@@ -289,13 +289,7 @@ impl RunConfig {
             value: String::new(),
             message: format!("the networks cannot be built: {e}"),
         };
-        let mut nets = DsacNets::new(&self.nets, &cpu, 0).map_err(net_err)?;
-        if self.dsac.twin_critics {
-            nets = nets.with_twin_critic(0).map_err(net_err)?;
-        }
-        if self.dsac.state_aux_weight > 0.0 {
-            nets = nets.with_state_head(self.nets.state_dim, 0).map_err(net_err)?;
-        }
+        let nets = DsacNets::for_learner(&self.nets, &self.dsac, &cpu, 0).map_err(net_err)?;
         let targets: Vec<_> =
             std::iter::once(&nets.target.store).chain(nets.twin.as_ref().map(|t| &t.target.store)).collect();
         let target_params: usize = targets.iter().map(|s| s.num_scalars()).sum();

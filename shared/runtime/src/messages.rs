@@ -276,22 +276,22 @@ impl Faults {
     }
 
     /// What the progress line says, e.g. `checkpoint FAILED: disk full, last good at
-    /// update 1200`; `last_good` is the heartbeat's field, `unit` what it counts.
+    /// update 1200`; `last_good` is the heartbeat's field (0: nothing saved yet), `unit`
+    /// what it counts. `None` when there is nothing to show (no fault, or only the
+    /// [`Faults::DISK_FULL`] qualifier).
     pub fn describe(self, last_good: u64, unit: &str) -> Option<String> {
-        if !self.any() {
-            return None;
-        }
         let why = if self.contains(Faults::DISK_FULL) { "disk full" } else { "cannot write" };
+        let last = if last_good == 0 { "none yet".to_string() } else { format!("at {unit} {last_good}") };
         let mut parts = Vec::new();
         if self.contains(Faults::CHECKPOINT) {
-            parts.push(format!("checkpoint FAILED: {why}, last good at {unit} {last_good}"));
+            parts.push(format!("checkpoint FAILED: {why}, last good {last}"));
         }
         if self.contains(Faults::STATE) {
-            parts.push(format!("curriculum state FAILED: {why}, last saved at {unit} {last_good}"));
+            parts.push(format!("curriculum state FAILED: {why}, last saved {last}"));
         }
         if self.contains(Faults::METRICS) {
-            parts.push(format!("metrics waiting in memory: {why}"));
+            parts.push(format!("metrics or stats waiting in memory: {why}"));
         }
-        Some(parts.join("; "))
+        (!parts.is_empty()).then(|| parts.join("; "))
     }
 }

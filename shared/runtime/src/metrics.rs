@@ -11,6 +11,8 @@
 //! record) stays in memory, whatever part of it reached the file is cut off again,
 //! and every later call first retries what waits, in order — so once space is freed
 //! the files hold every row, whole. [`Metrics::failing`] says what is waiting and why.
+//! Memory is bounded: past [`MAX_WAITING`] waiting records of one file, newer records
+//! are dropped and counted ([`MetricsFailure::dropped`]) rather than queued.
 
 use std::fs::{File, OpenOptions};
 use std::io::{BufRead, BufReader, Seek, Write};
@@ -18,6 +20,10 @@ use std::path::{Path, PathBuf};
 use std::time::{SystemTime, UNIX_EPOCH};
 
 use crate::error::{Result, RuntimeError};
+
+/// Records of one file that may wait in memory for the disk (about 10 MB of CSV rows,
+/// more than a day of episode rows at the reference rates); newer ones are dropped.
+pub const MAX_WAITING: usize = 100_000;
 
 /// CSV + TensorBoard writer for one process.
 pub struct Metrics {
@@ -34,6 +40,8 @@ pub struct AppendFile {
     file: File,
     path: PathBuf,
     waiting: std::collections::VecDeque<Vec<u8>>,
+    /// Records not queued because [`MAX_WAITING`] were already waiting.
+    dropped: u64,
     error: Option<std::io::Error>,
     /// Writes still to fail as a full disk would, half a record written (tests).
     inject: usize,
@@ -41,7 +49,7 @@ pub struct AppendFile {
 
 impl AppendFile {
     fn new(file: File, path: PathBuf) -> AppendFile {
-        AppendFile { file, path, waiting: Default::default(), error: None, inject: 0 }
+        AppendFile { file, path, waiting: Default::default(), dropped: 0, error: None, inject: 0 }
     }
 
     /// Open `path` for appending (created when missing).
@@ -52,7 +60,12 @@ impl AppendFile {
 
     /// When the last write failed: the file, the records waiting and the error.
     pub fn failure(&self) -> Option<MetricsFailure<'_>> {
-        self.failing().map(|(waiting, error)| MetricsFailure { path: &self.path, waiting, error })
+        self.error.as_ref().map(|error| MetricsFailure {
+            path: &self.path,
+            waiting: self.waiting.len(),
+            dropped: self.dropped,
+            error,
+        })
     }
 
     fn write_record(&mut self, record: &[u8]) -> std::io::Result<()> {
@@ -67,7 +80,19 @@ impl AppendFile {
 
     /// Queue `record` and write everything queued, in order, until a write fails.
     pub fn append(&mut self, record: Vec<u8>) {
-        self.waiting.push_back(record);
+        if self.waiting.len() >= MAX_WAITING {
+            self.write_waiting();
+        }
+        if self.waiting.len() >= MAX_WAITING {
+            self.dropped += 1;
+        } else {
+            self.waiting.push_back(record);
+        }
+        self.write_waiting();
+    }
+
+    /// Write the waiting records, in order, until a write fails.
+    fn write_waiting(&mut self) {
         while let Some(next) = self.waiting.front().cloned() {
             let at = self.file.metadata().map(|m| m.len()).ok();
             match self.write_record(&next) {
@@ -88,11 +113,6 @@ impl AppendFile {
             }
         }
     }
-
-    /// Records waiting and the error that keeps them, when a write failed.
-    fn failing(&self) -> Option<(usize, &std::io::Error)> {
-        self.error.as_ref().map(|e| (self.waiting.len(), e))
-    }
 }
 
 /// Why rows of a [`Metrics`] (or an [`AppendFile`]) are waiting in memory.
@@ -102,6 +122,8 @@ pub struct MetricsFailure<'a> {
     pub path: &'a Path,
     /// Records waiting for it.
     pub waiting: usize,
+    /// Records dropped since the file was opened because [`MAX_WAITING`] were waiting.
+    pub dropped: u64,
     /// The last write's error.
     pub error: &'a std::io::Error,
 }
@@ -120,13 +142,9 @@ impl Metrics {
                 .unwrap_or_default(),
             Err(_) => Vec::new(),
         };
-        let csv = OpenOptions::new()
-            .create(true)
-            .append(true)
-            .open(&csv_path)
-            .map_err(|e| RuntimeError::file(&csv_path, e))?;
+        let csv = AppendFile::open(&csv_path)?;
         let tb = TbWriter::create(&tb_dir.join(name))?;
-        Ok(Metrics { csv: AppendFile::new(csv, csv_path), columns, tb })
+        Ok(Metrics { csv, columns, tb })
     }
 
     /// Make the next `n` writes of each file fail as a full disk does, after writing
@@ -156,13 +174,14 @@ impl Metrics {
     /// CSV cell stays empty and TensorBoard gets no point — never a placeholder NaN.
     pub fn log_optional(&mut self, step: u64, values: &[(&str, Option<f64>)]) -> Result<()> {
         if self.columns.is_empty() {
-            self.columns =
-                std::iter::once("step".to_string()).chain(values.iter().map(|(k, _)| k.to_string())).collect();
+            self.columns = std::iter::once(crate::columns::STEP.to_string())
+                .chain(values.iter().map(|(k, _)| k.to_string()))
+                .collect();
             self.csv.append(format!("{}\n", self.columns.join(",")).into_bytes());
         }
         let mut row = Vec::with_capacity(self.columns.len());
         for c in &self.columns {
-            if c == "step" {
+            if c == crate::columns::STEP {
                 row.push(step.to_string());
             } else {
                 let value = values.iter().find(|(k, _)| k == c).and_then(|(_, v)| *v);
@@ -317,6 +336,32 @@ mod tests {
             records += 1;
         }
         assert_eq!((at, records), (tb.len(), 5));
+        let _ = std::fs::remove_dir_all(&dir);
+    }
+
+    #[test]
+    fn memory_for_waiting_records_is_bounded_and_the_overflow_counted() {
+        let dir = std::env::temp_dir().join(format!("pednav-metrics-cap-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        std::fs::create_dir_all(&dir).unwrap();
+        let mut f = AppendFile::open(&dir.join("log.csv")).unwrap();
+        f.inject = MAX_WAITING + 10;
+        for i in 0..MAX_WAITING + 5 {
+            f.append(format!("{i}\n").into_bytes());
+        }
+        let failure = f.failure().expect("failing");
+        assert_eq!((failure.waiting, failure.dropped), (MAX_WAITING, 5));
+        // Once the disk takes writes, the kept records arrive in order, whole.
+        f.inject = 0;
+        f.append(b"last\n".to_vec());
+        assert!(f.failure().is_none());
+        let text = std::fs::read_to_string(dir.join("log.csv")).unwrap();
+        let lines: Vec<&str> = text.lines().collect();
+        assert_eq!(lines.len(), MAX_WAITING + 1);
+        assert_eq!(
+            (lines[0], lines[MAX_WAITING - 1], lines[MAX_WAITING]),
+            ("0", &*format!("{}", MAX_WAITING - 1), "last")
+        );
         let _ = std::fs::remove_dir_all(&dir);
     }
 

@@ -125,15 +125,17 @@ impl RunDir {
 
     /// Append a restart to [`RunDir::restarts_log`] (one JSON object per line).
     pub fn append_restart(&self, record: &RestartRecord) -> Result<()> {
-        use std::io::Write;
         let path = self.restarts_log();
         let line = serde_json::to_string(record).expect("a restart record serialises") + "\n";
-        std::fs::OpenOptions::new()
-            .create(true)
-            .append(true)
-            .open(&path)
-            .and_then(|mut f| f.write_all(line.as_bytes()))
-            .map_err(|source| RuntimeError::Write { path, source })
+        // Whole lines only: a write the disk refuses is cut off again (AppendFile).
+        let mut file = crate::AppendFile::open(&path)?;
+        file.append(line.into_bytes());
+        match file.failure() {
+            None => Ok(()),
+            Some(f) => {
+                Err(RuntimeError::Write { path, source: std::io::Error::new(f.error.kind(), f.error.to_string()) })
+            }
+        }
     }
 
     /// Every restart recorded so far, in order (an unreadable line is skipped with a warning).
@@ -155,8 +157,11 @@ impl RunDir {
         let tmp = path.with_extension("json.tmp");
         let text = serde_json::to_string_pretty(value).expect("stats serialise");
         let write = |path: &Path, source| RuntimeError::Write { path: path.to_path_buf(), source };
-        std::fs::write(&tmp, text).map_err(|e| write(&tmp, e))?;
-        std::fs::rename(&tmp, &path).map_err(|e| write(&path, e))
+        // A failed write leaves no temporary file behind (a full disk would keep it full).
+        std::fs::write(&tmp, text).and_then(|()| std::fs::rename(&tmp, &path)).map_err(|e| {
+            let _ = std::fs::remove_file(&tmp);
+            write(&path, e)
+        })
     }
 
     /// Read a stats file (`stats/<name>.json`): `None` when it does not exist (yet); an

@@ -26,12 +26,13 @@ struct Failing {
 pub struct WriteHealth {
     every: Duration,
     failing: BTreeMap<&'static str, Failing>,
+    warnings: u64,
 }
 
 impl WriteHealth {
     /// Failures are logged when they start and then at most once per `warn_every`.
     pub fn new(warn_every: Duration) -> WriteHealth {
-        WriteHealth { every: warn_every, failing: BTreeMap::new() }
+        WriteHealth { every: warn_every, failing: BTreeMap::new(), warnings: 0 }
     }
 
     /// A write of `what` (e.g. `"checkpoint"`) failed with `message` (naming the file
@@ -42,6 +43,7 @@ impl WriteHealth {
         let now = Instant::now();
         let due = self.failing.get(what).is_none_or(|f| f.warned.elapsed() >= self.every);
         if due {
+            self.warnings += 1;
             tracing::warn!("{what} FAILED{}: {message}; {meanwhile}", if disk_full { " (disk full)" } else { "" });
         }
         let warned = if due { now } else { self.failing[what].warned };
@@ -68,7 +70,10 @@ impl WriteHealth {
                 Faults::METRICS,
                 crate::generations::is_disk_full(f.error),
                 &format!("{}: {}", f.path.display(), f.error),
-                &format!("{} rows wait in memory and are written once the disk takes them", f.waiting),
+                &match f.dropped {
+                    0 => format!("{} rows wait in memory and are written once the disk takes them", f.waiting),
+                    d => format!("{} rows wait in memory (the most kept; {d} newer rows were dropped)", f.waiting),
+                },
             ),
             None => self.succeeded(what),
         }
@@ -77,6 +82,11 @@ impl WriteHealth {
     /// The faults of every failing write.
     pub fn faults(&self) -> Faults {
         self.failing.values().fold(Faults::NONE, |acc, f| acc.with(f.fault))
+    }
+
+    /// Failure warnings logged so far (what the once-per-interval throttle let through).
+    pub fn warnings_logged(&self) -> u64 {
+        self.warnings
     }
 
     /// Whether `what` is failing.
@@ -104,5 +114,30 @@ mod tests {
             Faults::CHECKPOINT.with(Faults::DISK_FULL).describe(1200, "update").as_deref(),
             Some("checkpoint FAILED: disk full, last good at update 1200")
         );
+        assert_eq!(
+            Faults::STATE.describe(0, "episode").as_deref(),
+            Some("curriculum state FAILED: cannot write, last saved none yet")
+        );
+        assert_eq!(Faults::DISK_FULL.describe(5, "update"), None);
+        assert_eq!(Faults::NONE.describe(5, "update"), None);
+    }
+
+    #[test]
+    fn a_failing_write_is_logged_when_it_starts_and_then_once_per_interval() {
+        let mut h = WriteHealth::new(Duration::from_secs(3600));
+        for _ in 0..5 {
+            h.failed("metrics", Faults::METRICS, false, "m: Read-only file system", "kept");
+        }
+        assert_eq!(h.warnings_logged(), 1, "five failures in a row within the interval: one warning");
+        h.failed("stats", Faults::METRICS, false, "s: Read-only file system", "kept");
+        assert_eq!(h.warnings_logged(), 2, "another kind of write is throttled on its own");
+        h.succeeded("metrics");
+        h.failed("metrics", Faults::METRICS, false, "m: Read-only file system", "kept");
+        assert_eq!(h.warnings_logged(), 3, "a failure after a recovery starts a new run of failures");
+        let mut every_time = WriteHealth::new(Duration::ZERO);
+        for _ in 0..3 {
+            every_time.failed("stats", Faults::METRICS, false, "s", "kept");
+        }
+        assert_eq!(every_time.warnings_logged(), 3);
     }
 }

@@ -22,6 +22,7 @@
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
+use crate::SimError;
 use crate::render::{CameraView, Look, Renderer};
 use crate::scene::{Pose, RegionKind, Scene, wrap_angle};
 
@@ -151,12 +152,33 @@ impl PoseSet {
     /// rotation-safe square, where an episode could start (clear of obstacles) and
     /// a pedestrian can walk to ([`Walkable`]), with uniform yaw; each rendered with
     /// the plain look, or a domain-randomised one (as an episode's) when `randomize`.
-    pub fn sidewalks(scene: &Scene, count: usize, seed: u64, randomize: bool) -> PoseSet {
+    /// An error when the scene has no rotation-safe square around the origin, or when
+    /// too few draws land on a walkable sidewalk (a scene whose sidewalks are out of
+    /// reach of the first task, or smaller than [`Scene::START_CLEARANCE`]).
+    pub fn sidewalks(scene: &Scene, count: usize, seed: u64, randomize: bool) -> crate::Result<PoseSet> {
         let mut rng = ChaCha8Rng::seed_from_u64(seed);
         let half = symmetric_half_side(scene);
+        let invalid =
+            |message: String| SimError::SceneInvalid { origin: scene.origin.clone(), field: "extent".into(), message };
+        if half.is_nan() || half <= 0.0 {
+            return Err(invalid(format!(
+                "the recognisability poses lie in the square |x|, |y| < {half} m, which is empty: the world must contain the origin (the intersection's centre)"
+            )));
+        }
         let walkable = Walkable::of(scene);
         let (mut poses, mut looks) = (Vec::with_capacity(count), Vec::with_capacity(count));
+        // A sidewalk covers a sizeable share of the reference square (about a third);
+        // a thousand draws per pose leaves room for scenes with far less.
+        let max_draws = 1000 * count.max(10);
+        let mut draws = 0;
         while poses.len() < count {
+            draws += 1;
+            if draws > max_draws {
+                return Err(invalid(format!(
+                    "only {} of {count} poses found on walkable sidewalks in {max_draws} uniform draws over |x|, |y| < {half} m",
+                    poses.len()
+                )));
+            }
             let pose = Pose {
                 x: rng.random_range(-half..half),
                 y: rng.random_range(-half..half),
@@ -172,7 +194,7 @@ impl PoseSet {
                 looks.push(if randomize { Look::randomized(look_seed) } else { Look::default() });
             }
         }
-        PoseSet { poses, looks }
+        Ok(PoseSet { poses, looks })
     }
 
     /// The quadrant of every pose.
@@ -300,9 +322,9 @@ mod tests {
     #[test]
     fn pose_sets_are_seeded_and_lie_on_sidewalks_clear_of_obstacles() {
         let scene = Scene::reference();
-        let a = PoseSet::sidewalks(&scene, 50, 7, false);
-        assert_eq!(a, PoseSet::sidewalks(&scene, 50, 7, false));
-        assert_ne!(a, PoseSet::sidewalks(&scene, 50, 8, false));
+        let a = PoseSet::sidewalks(&scene, 50, 7, false).unwrap();
+        assert_eq!(a, PoseSet::sidewalks(&scene, 50, 7, false).unwrap());
+        assert_ne!(a, PoseSet::sidewalks(&scene, 50, 8, false).unwrap());
         let half = symmetric_half_side(&scene);
         for p in &a.poses {
             assert!(matches!(scene.region_kind_exact(p.x, p.y), RegionKind::Sidewalk | RegionKind::GoalSidewalk));

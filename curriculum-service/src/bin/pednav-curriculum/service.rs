@@ -19,7 +19,7 @@ use pednav_runtime::ipc::{EpisodeSubscriber, HeartbeatPublisher, TaskServer};
 use pednav_runtime::messages::{EpisodeHeader, Faults, Heartbeat, TaskResponse, process_kind};
 use pednav_runtime::stats::{CurriculumStats, GateOpened};
 use pednav_runtime::write_health::WriteHealth;
-use pednav_runtime::{AppendFile, Ipc, Metrics, RunConfig, RunDir, StopFlag, run_prefix};
+use pednav_runtime::{AppendFile, Ipc, Metrics, RunConfig, RunDir, StopFlag, columns, run_prefix};
 use pednav_sim::{Pose, Scene};
 
 /// Reported episodes between two saved snapshots of the curriculum state
@@ -35,13 +35,12 @@ struct EpisodeLog {
 impl EpisodeLog {
     fn open(dir: &RunDir) -> Result<EpisodeLog> {
         let path = dir.metrics_csv("episodes");
-        let new = !path.exists();
+        // A file that is missing, or empty because the header write itself failed before a
+        // crash, gets the header; one with rows keeps appending.
+        let new = std::fs::metadata(&path).map(|m| m.len() == 0).unwrap_or(true);
         let mut file = AppendFile::open(&path)?;
         if new {
-            file.append(
-                b"episode,decision_steps,actor,env,task_id,category,x,y,yaw_deg,length,discounted_return,success,truncated\n"
-                    .to_vec(),
-            );
+            file.append(format!("{}\n", columns::episodes::HEADER.join(",")).into_bytes());
         }
         Ok(EpisodeLog { file })
     }
@@ -269,7 +268,14 @@ impl CurriculumService {
         if episodes.is_multiple_of(SNAPSHOT_EVERY_EPISODES) {
             let name = format!("ep{episodes:08}-steps{}.json", self.decision_steps);
             let outcome = self.save(&self.dir.curriculum_snapshots().join(name));
-            self.record_save("snapshot", outcome, "the snapshot is skipped; the next one is due in 500 episodes");
+            // A lost snapshot costs a point of the curriculum plot, not the run's state: logged,
+            // not a heartbeat fault.
+            self.record_save(
+                "snapshot",
+                Faults::NONE,
+                outcome,
+                "the snapshot is skipped; the next one is due in 500 episodes",
+            );
         }
         self.recent.push_back((summary.discounted_return, outcome.success));
         if self.recent.len() > 100 {
@@ -281,14 +287,19 @@ impl CurriculumService {
             if outcome.is_ok() {
                 self.last_good = Some(episodes);
             }
-            self.record_save("curriculum state", outcome, "serving goes on; retried after the next episodes");
+            self.record_save(
+                "curriculum state",
+                Faults::STATE,
+                outcome,
+                "serving goes on; retried after the next episodes",
+            );
             self.since_save = 0;
         }
         Ok(())
     }
 
     /// Log a failed save once per interval (it is retried at the next one), or its recovery.
-    fn record_save(&mut self, what: &'static str, outcome: Result<()>, meanwhile: &str) {
+    fn record_save(&mut self, what: &'static str, fault: Faults, outcome: Result<()>, meanwhile: &str) {
         match outcome {
             Ok(()) => self.health.succeeded(what),
             Err(e) => {
@@ -296,7 +307,7 @@ impl CurriculumService {
                 let last = self.last_good.map_or("none yet".into(), |n| format!("after {n} episodes"));
                 self.health.failed(
                     what,
-                    Faults::STATE,
+                    fault,
                     disk_full,
                     &format!("{e:#}"),
                     &format!("{meanwhile}; last good state: {last}"),

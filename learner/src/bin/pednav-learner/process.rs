@@ -17,6 +17,7 @@ use pednav_learner::{
     Dsac, DualReplay, Frame, FrameKind, RateLimiter, Step, UpdateStats, checkpoint_exists, load_checkpoint_or_previous,
     save_checkpoint,
 };
+use pednav_runtime::columns::learner as col;
 use pednav_runtime::ipc::{HeartbeatPublisher, StepSample, StepSubscriber, receive_step_round};
 use pednav_runtime::messages::{Faults, Heartbeat, StepHeader, process_kind, state_payload, step_flags};
 use pednav_runtime::stats::{self, LearnerStats, StreamTally};
@@ -203,7 +204,7 @@ impl LearnerProcess {
         let mut dsac = Dsac::new(&cfg.dsac, &cfg.nets, device, cfg.seed)?;
         let mut limiter = RateLimiter::new(cfg.dsac.warmup, cfg.dsac.train_interval, cfg.dsac.rate_slack);
         let mut sample_rng = ChaCha8Rng::seed_from_u64(cfg.seed);
-        sample_rng.set_stream(7);
+        sample_rng.set_stream(pednav_config::rng::stream::BATCH_SAMPLER);
         let mut resumed_from = None;
         let mut received_total = 0u64;
         let ckpt = dir.learner_checkpoint();
@@ -232,7 +233,7 @@ impl LearnerProcess {
         }
         let kind = cfg.frame_kind();
         let mut replay = DualReplay::new(&cfg.replay, kind, cfg.nets.history, device)?;
-        if cfg.dsac.state_aux_weight > 0.0 {
+        if cfg.dsac.builds_state_head() {
             replay = replay.with_state_targets(cfg.nets.state_dim)?;
         }
         let l = Learner {
@@ -473,25 +474,25 @@ impl LearnerProcess {
         let per_update = |t: f64| (ups > 0).then(|| 1e3 * t / ups as f64);
         let s = &iv.stats;
         let mut row = vec![
-            ("elapsed_s", Some(self.started.elapsed().as_secs_f64())),
-            ("updates", Some(l.dsac.updates as f64)),
-            ("env_steps_per_s", Some(steps as f64 / secs)),
-            ("updates_per_s", Some(ups as f64 / secs)),
-            ("update_ms", per_update(iv.t_update)),
-            ("sample_ms", per_update(iv.t_sample)),
-            ("replay_terminal", Some(l.replay.terminal_len() as f64)),
-            ("replay_nonterminal", Some(l.replay.nonterminal_len() as f64)),
-            ("critic_loss", iv.mean(s.critic_loss)),
-            ("policy_loss", iv.mean(s.policy_loss)),
-            ("fraction_loss", iv.mean(s.fraction_loss)),
-            ("alpha_loss", iv.mean(s.alpha_loss)),
-            ("alpha", iv.mean(s.alpha)),
-            ("entropy", iv.mean(s.entropy)),
-            ("q_mean", iv.mean(s.q_mean)),
-            ("skipped_updates", Some(l.dsac.skipped as f64)),
+            (col::ELAPSED_S, Some(self.started.elapsed().as_secs_f64())),
+            (col::UPDATES, Some(l.dsac.updates as f64)),
+            (col::ENV_STEPS_PER_S, Some(steps as f64 / secs)),
+            (col::UPDATES_PER_S, Some(ups as f64 / secs)),
+            (col::UPDATE_MS, per_update(iv.t_update)),
+            (col::SAMPLE_MS, per_update(iv.t_sample)),
+            (col::REPLAY_TERMINAL, Some(l.replay.terminal_len() as f64)),
+            (col::REPLAY_NONTERMINAL, Some(l.replay.nonterminal_len() as f64)),
+            (col::CRITIC_LOSS, iv.mean(s.critic_loss)),
+            (col::POLICY_LOSS, iv.mean(s.policy_loss)),
+            (col::FRACTION_LOSS, iv.mean(s.fraction_loss)),
+            (col::ALPHA_LOSS, iv.mean(s.alpha_loss)),
+            (col::ALPHA, iv.mean(s.alpha)),
+            (col::ENTROPY, iv.mean(s.entropy)),
+            (col::Q_MEAN, iv.mean(s.q_mean)),
+            (col::SKIPPED_UPDATES, Some(l.dsac.skipped as f64)),
         ];
-        if self.cfg.dsac.state_aux_weight > 0.0 {
-            row.push(("state_loss", iv.mean(s.state_loss)));
+        if self.cfg.dsac.builds_state_head() {
+            row.push((col::STATE_LOSS, iv.mean(s.state_loss)));
         }
         self.metrics.log_optional(self.received_total, &row)?;
         self.health.metrics(&self.metrics);

@@ -24,7 +24,7 @@ use pednav_experiments::evaluate::{Evaluator, PolicyKind};
 use pednav_experiments::plots::{self, PALETTE, Series};
 use pednav_experiments::protocol;
 use pednav_nets::DsacNets;
-use pednav_runtime::{RunConfig, RunDir};
+use pednav_runtime::{RunConfig, RunDir, columns};
 
 #[derive(Parser, Debug)]
 #[command(
@@ -66,7 +66,7 @@ struct Cli {
 /// (column, value) pairs, when the run has one.
 fn last_learner_metrics(run_dir: &Path) -> Option<Vec<(String, f64)>> {
     let (header, rows) = plots::learner_log(run_dir).ok()?;
-    let ups = header.iter().position(|h| h == "updates_per_s")?;
+    let ups = header.iter().position(|h| h == columns::learner::UPDATES_PER_S)?;
     let row = rows.iter().rev().find(|r| r[ups] > 0.0).or(rows.last())?;
     Some(header.into_iter().zip(row.iter().copied()).collect())
 }
@@ -89,7 +89,7 @@ fn main() -> Result<()> {
     if agent.meta.nets != cfg.nets {
         bail!("{}: the checkpoint's networks differ from {}", ckpt.display(), cfg_path.display());
     }
-    let untrained = DsacNets::new(&cfg.nets, &device, cfg.seed.wrapping_add(1))?;
+    let untrained = DsacNets::new(&cfg.nets, &device, pednav_config::rng::untrained_reference_seed(cfg.seed))?;
     let gamma = cfg.dsac.gamma as f32;
     let tasks = protocol::validation_tasks(&cfg.scene()?, cli.runs, cli.seed);
     let mut recorder = DiagnosisRecorder::new(agent.nets.clone(), untrained, agent.alpha, gamma, cli.envs, cli.stride);
@@ -137,17 +137,17 @@ fn main() -> Result<()> {
     let training = last_learner_metrics(&cli.run_dir);
     if let Some(m) = &training {
         let get = |k: &str| m.iter().find(|(h, _)| h == k).map_or(f64::NAN, |(_, v)| *v);
-        let (term, non) = (get("replay_terminal"), get("replay_nonterminal"));
+        let (term, non) = (get(columns::learner::REPLAY_TERMINAL), get(columns::learner::REPLAY_NONTERMINAL));
         text.push_str(&format!(
             "\nTraining at its last log (metrics/learner.csv): env step {:.0}, update {:.0}; replay {:.0} terminal + {:.0} non-terminal transitions (terminal share {:.4}); α {:.4}, policy entropy {:.3}, batch mean Q {:.2}\n",
-            get("step"),
-            get("updates"),
+            get(columns::STEP),
+            get(columns::learner::UPDATES),
             term,
             non,
             term / (term + non),
-            get("alpha"),
-            get("entropy"),
-            get("q_mean")
+            get(columns::learner::ALPHA),
+            get(columns::learner::ENTROPY),
+            get(columns::learner::Q_MEAN)
         ));
     }
     print!("{text}");

@@ -21,7 +21,7 @@ use anyhow::{Context, Result, bail};
 use clap::{Parser, Subcommand};
 use pednav_experiments::bootstrap::{self, Average, RunReturns};
 use pednav_experiments::plots::{self, PALETTE, Series, moving_average};
-use pednav_runtime::{RunConfig, RunDir};
+use pednav_runtime::{RunConfig, RunDir, columns};
 use pednav_sim::oracle::{Oracle, OracleConfig};
 use pednav_sim::{ObsMode, Pose, SimConfig, SimWorld};
 
@@ -137,7 +137,7 @@ fn episodes(run: &Path) -> Result<Vec<(f64, f64)>> {
     let header: Vec<&str> = lines.next().context("empty episode log")?.split(',').collect();
     let col =
         |n: &str| header.iter().position(|h| *h == n).with_context(|| format!("{}: no `{n}` column", path.display()));
-    let (cs, cr) = (col("decision_steps")?, col("discounted_return")?);
+    let (cs, cr) = (col(columns::episodes::DECISION_STEPS)?, col(columns::episodes::DISCOUNTED_RETURN)?);
     let rows: Vec<(f64, f64)> = lines
         .filter_map(|l| {
             let v: Vec<&str> = l.split(',').collect();
@@ -228,11 +228,11 @@ fn curves(run: &Path, out: &Path, window: usize) -> Result<()> {
 
 /// The learner metrics panels: (column, panel title, axis label).
 const LEARNER_PANELS: [(&str, &str, &str); 6] = [
-    ("alpha", "temperature α", "α"),
-    ("entropy", "policy entropy −log π (batch mean)", "nats"),
-    ("q_mean", "mean Q(s, a) of the batch", "Q"),
-    ("critic_loss", "critic loss (quantile Huber)", "loss"),
-    ("policy_loss", "policy loss", "loss"),
+    (columns::learner::ALPHA, "temperature α", "α"),
+    (columns::learner::ENTROPY, "policy entropy −log π (batch mean)", "nats"),
+    (columns::learner::Q_MEAN, "mean Q(s, a) of the batch", "Q"),
+    (columns::learner::CRITIC_LOSS, "critic loss (quantile Huber)", "loss"),
+    (columns::learner::POLICY_LOSS, "policy loss", "loss"),
     ("terminal_share", "replay: terminal share of stored transitions", "share"),
 ];
 
@@ -249,17 +249,18 @@ fn learner(runs: &[PathBuf], out: &Path) -> Result<()> {
     for (i, run) in runs.iter().enumerate() {
         let (header, rows) = plots::learner_log(run)?;
         let col = |n: &str| header.iter().position(|h| h == n);
-        let step = col("step").with_context(|| format!("{}: learner log without `step`", run.display()))?;
+        let step = col(columns::STEP).with_context(|| format!("{}: learner log without `step`", run.display()))?;
         let name = run.file_name().map_or("run".into(), |n| n.to_string_lossy().to_string());
         for (panel, (column, _, _)) in panels.iter_mut().zip(LEARNER_PANELS) {
             let value = |r: &Vec<f64>| -> Option<f64> {
                 if column == "terminal_share" {
-                    let (t, n) = (r[col("replay_terminal")?], r[col("replay_nonterminal")?]);
+                    let (t, n) =
+                        (r[col(columns::learner::REPLAY_TERMINAL)?], r[col(columns::learner::REPLAY_NONTERMINAL)?]);
                     (t + n > 0.0).then(|| t / (t + n))
                 } else {
                     // Update statistics exist only for intervals with updates.
                     let v = r[col(column)?];
-                    (r[col("updates_per_s")?] > 0.0).then_some(v)
+                    (r[col(columns::learner::UPDATES_PER_S)?] > 0.0).then_some(v)
                 }
             };
             let points: Vec<(f64, f64)> =
@@ -299,15 +300,15 @@ fn curriculum(run: &Path, out: &Path, max: usize) -> Result<()> {
     Ok(())
 }
 
-/// `table.csv` of an evaluation given as a run directory, an evaluation folder or the file.
-/// The per-episode results of a run directory, an evaluation folder, or the file itself.
-fn eval_results(path: &Path) -> PathBuf {
+/// An evaluation's file `name` (`results.csv`, `table.csv`), given the file itself, its
+/// evaluation folder, or a run directory (whose learned policy's evaluation is meant).
+fn eval_file(path: &Path, name: &str) -> PathBuf {
     if path.is_file() {
         path.to_path_buf()
-    } else if path.join("results.csv").is_file() {
-        path.join("results.csv")
+    } else if path.join(name).is_file() {
+        path.join(name)
     } else {
-        path.join("eval").join("learned").join("results.csv")
+        path.join("eval").join("learned").join(name)
     }
 }
 
@@ -317,7 +318,7 @@ fn group_returns(spec: &str) -> Result<(String, Vec<RunReturns>)> {
     let runs: Vec<RunReturns> = runs
         .split(',')
         .filter(|r| !r.is_empty())
-        .map(|r| RunReturns::read(&eval_results(Path::new(r))).map_err(anyhow::Error::from))
+        .map(|r| RunReturns::read(&eval_file(Path::new(r), "results.csv")).map_err(anyhow::Error::from))
         .collect::<Result<_>>()?;
     if runs.is_empty() {
         bail!("{label}: no runs");
@@ -349,20 +350,10 @@ fn interval(a: &str, b: &str, replicates: usize, level: f64, seed: u64) -> Resul
     Ok(s)
 }
 
-fn eval_table(path: &Path) -> PathBuf {
-    if path.is_file() {
-        path.to_path_buf()
-    } else if path.join("table.csv").is_file() {
-        path.join("table.csv")
-    } else {
-        path.join("eval").join("learned").join("table.csv")
-    }
-}
-
 fn table(groups: &[String], random: Option<&Path>) -> Result<String> {
     use pednav_experiments::table::{EvalSummary, gap_closed, mean_and_sample_std};
     use std::fmt::Write as _;
-    let read = |p: &Path| EvalSummary::read(&eval_table(p)).map_err(anyhow::Error::from);
+    let read = |p: &Path| EvalSummary::read(&eval_file(p, "table.csv")).map_err(anyhow::Error::from);
     let random = random.map(read).transpose()?;
     let mut rows = Vec::new();
     let mut oracle = None;

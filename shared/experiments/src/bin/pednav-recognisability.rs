@@ -41,7 +41,8 @@ struct Cli {
     #[arg(long)]
     image_size: Option<u32>,
     /// Render every pose with a domain-randomised look, as episodes do when
-    /// `sim.domain_randomization` is on (overrides the config's).
+    /// `sim.domain_randomization` is on. Turns it on when the config leaves it off;
+    /// without the flag the config's setting is used.
     #[arg(long)]
     domain_randomization: bool,
     /// Test poses: the aliasing measure and the classifier's held-out set.
@@ -99,8 +100,8 @@ fn main() -> Result<()> {
 
     let started = Instant::now();
     // Test and training poses from two streams of the seed: never the same poses.
-    let test = PoseSet::sidewalks(&world.scene, cli.poses, cli.seed, sim.domain_randomization);
-    let train = PoseSet::sidewalks(&world.scene, cli.train_poses, cli.seed ^ 0x7261_696e, sim.domain_randomization);
+    let test = PoseSet::sidewalks(&world.scene, cli.poses, cli.seed, sim.domain_randomization)?;
+    let train = PoseSet::sidewalks(&world.scene, cli.train_poses, cli.seed ^ 0x7261_696e, sim.domain_randomization)?;
     let alias = aliasing(&mut renderer, &test, sim.eye_height)?;
     eprintln!(
         "(a) aliasing: {} of {} poses ({:.1} %) look more like a rotated twin than their own step; median twin/step distance {:.2}",

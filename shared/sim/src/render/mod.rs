@@ -15,6 +15,8 @@
 //! preferred, it measured faster here) or Vulkan through lavapipe
 //! (`apt-get install -y mesa-vulkan-drivers`).
 
+mod adapter;
+mod frames;
 mod ground;
 pub mod mesh;
 
@@ -26,38 +28,12 @@ use wgpu::util::DeviceExt;
 use crate::region_map::RegionMap;
 use crate::scene::Scene;
 
+use adapter::{describe, pick_adapter};
+
 pub use crate::error::RenderError;
+pub use adapter::{BackendChoice, prepare_headless_env};
+pub use frames::Frames;
 pub use mesh::SKY_SHADE;
-
-/// Which wgpu backend to use.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Serialize, serde::Deserialize, clap::ValueEnum)]
-#[serde(rename_all = "snake_case")]
-pub enum BackendChoice {
-    /// Best adapter found: a real GPU first, then Mesa's CPU rasterisers.
-    #[default]
-    Auto,
-    /// Vulkan only (a GPU driver, or lavapipe).
-    Vulkan,
-    /// OpenGL ES through EGL only (a GPU driver, or llvmpipe).
-    Gl,
-}
-
-impl BackendChoice {
-    /// The choice named by the `PEDNAV_BACKEND` environment variable (`auto`,
-    /// `vulkan` or `gl`), or `Auto` when it is unset. Lets a user or a test run pin
-    /// a backend without a flag; an unknown value is an error naming the variable.
-    pub fn from_env() -> Result<BackendChoice, String> {
-        match std::env::var("PEDNAV_BACKEND") {
-            Err(_) => Ok(BackendChoice::Auto),
-            Ok(v) => match v.to_ascii_lowercase().as_str() {
-                "" | "auto" => Ok(BackendChoice::Auto),
-                "vulkan" => Ok(BackendChoice::Vulkan),
-                "gl" => Ok(BackendChoice::Gl),
-                other => Err(format!("PEDNAV_BACKEND={other} is not one of auto, vulkan, gl")),
-            },
-        }
-    }
-}
 
 /// Settings of a renderer.
 #[derive(Debug, Clone, PartialEq)]
@@ -164,76 +140,6 @@ pub struct Renderer {
     proj: Mat4,
     adapter_info: wgpu::AdapterInfo,
     staging: Vec<u8>,
-}
-
-fn device_rank(info: &wgpu::AdapterInfo) -> (u8, u8) {
-    let kind = match info.device_type {
-        wgpu::DeviceType::DiscreteGpu => 0,
-        wgpu::DeviceType::IntegratedGpu => 1,
-        wgpu::DeviceType::VirtualGpu => 2,
-        wgpu::DeviceType::Cpu => 3,
-        wgpu::DeviceType::Other => 4,
-    };
-    // On a real GPU prefer Vulkan; on Mesa's CPU rasterisers GL (llvmpipe) measured
-    // faster than Vulkan (lavapipe) for our batched 84×84 views (README, Performance).
-    let backend = match (info.backend, info.device_type) {
-        (wgpu::Backend::Gl, wgpu::DeviceType::Cpu) => 0,
-        (wgpu::Backend::Vulkan, _) => 1,
-        (wgpu::Backend::Gl, _) => 2,
-        _ => 3,
-    };
-    (kind, backend)
-}
-
-/// Give the graphics stack a private runtime directory when the environment names
-/// none, so probing for a window system on a headless machine does not print
-/// `error: XDG_RUNTIME_DIR is invalid or not set in the environment.` (libwayland,
-/// loaded by Mesa) for every renderer; with a valid directory and no compositor the
-/// probe fails quietly and real errors still show.
-///
-/// Call it first thing in `main` of a process that renders, before any thread
-/// starts: changing the environment is only sound while no other thread can read it,
-/// so with other threads running it leaves the environment alone. Does nothing when
-/// `XDG_RUNTIME_DIR` already names a directory.
-pub fn prepare_headless_env() {
-    if std::env::var_os("XDG_RUNTIME_DIR").is_some_and(|d| std::path::Path::new(&d).is_dir()) {
-        return;
-    }
-    let single_threaded = std::fs::read_to_string("/proc/self/status")
-        .ok()
-        .and_then(|s| s.lines().find_map(|l| l.strip_prefix("Threads:")).and_then(|v| v.trim().parse::<u32>().ok()))
-        == Some(1);
-    if !single_threaded {
-        tracing::debug!("prepare_headless_env after other threads started: XDG_RUNTIME_DIR left unset");
-        return;
-    }
-    // SAFETY: getuid has no preconditions.
-    let dir = std::env::temp_dir().join(format!("pednav-runtime-{}", unsafe { libc::getuid() }));
-    use std::os::unix::fs::{DirBuilderExt, PermissionsExt};
-    let made = std::fs::DirBuilder::new().recursive(true).mode(0o700).create(&dir);
-    let private = std::fs::metadata(&dir).is_ok_and(|m| m.is_dir() && m.permissions().mode() & 0o077 == 0);
-    if made.is_ok() && private {
-        // SAFETY: this is the process's only thread (checked above).
-        unsafe { std::env::set_var("XDG_RUNTIME_DIR", &dir) };
-    }
-}
-
-/// Pick the best adapter for a backend choice.
-fn pick_adapter(choice: BackendChoice) -> Result<wgpu::Adapter, RenderError> {
-    let backends = match choice {
-        BackendChoice::Auto => wgpu::Backends::VULKAN | wgpu::Backends::GL,
-        BackendChoice::Vulkan => wgpu::Backends::VULKAN,
-        BackendChoice::Gl => wgpu::Backends::GL,
-    };
-    let mut desc = wgpu::InstanceDescriptor::new_without_display_handle();
-    desc.backends = backends;
-    let instance = wgpu::Instance::new(desc);
-    let mut adapters = pollster::block_on(instance.enumerate_adapters(backends));
-    adapters.sort_by_key(|a| device_rank(&a.get_info()));
-    adapters.into_iter().next().ok_or_else(|| RenderError::NoAdapter {
-        backend: format!("{choice:?}").to_lowercase(),
-        tried: format!("{backends:?}"),
-    })
 }
 
 impl Renderer {
@@ -599,84 +505,5 @@ impl Renderer {
         }
         let view = self.readback.slice(..bytes).get_mapped_range().map_err(|e| RenderError::Readback(e.to_string()))?;
         Ok(Frames { view: Some(view), count: views.len(), renderer: self })
-    }
-}
-
-fn describe(info: &wgpu::AdapterInfo) -> String {
-    format!("{} ({:?}, {:?})", info.name, info.backend, info.device_type)
-}
-
-/// The mapped result of one [`Renderer::render`] call; unmaps on drop.
-pub struct Frames<'a> {
-    view: Option<wgpu::BufferView>,
-    renderer: &'a Renderer,
-    count: usize,
-}
-
-impl Frames<'_> {
-    /// Number of views.
-    pub fn len(&self) -> usize {
-        self.count
-    }
-
-    /// True when no view was rendered.
-    pub fn is_empty(&self) -> bool {
-        self.count == 0
-    }
-
-    /// Side of each view in pixels.
-    pub fn image_size(&self) -> u32 {
-        self.renderer.config.image_size
-    }
-
-    /// Row `row` (0 = top) of view `i`, straight from the mapped buffer.
-    #[inline]
-    pub fn row(&self, i: usize, row: u32) -> &[u8] {
-        assert!(i < self.count, "view {i} out of {}", self.count);
-        let r = self.renderer;
-        let size = r.config.image_size;
-        let (c, gr) = (i as u32 % r.cols, i as u32 / r.cols);
-        let start = ((gr * size + row) * r.padded_bpr + c * size) as usize;
-        let data: &[u8] = self.view.as_deref().expect("non-empty frames are mapped");
-        &data[start..start + size as usize]
-    }
-
-    /// Copy view `i` into `dst` (`image_size²` bytes, row-major, top row first).
-    pub fn copy_frame(&self, i: usize, dst: &mut [u8]) {
-        let size = self.image_size() as usize;
-        assert_eq!(dst.len(), size * size, "destination must hold one {size}×{size} frame");
-        for (row, chunk) in dst.chunks_exact_mut(size).enumerate() {
-            chunk.copy_from_slice(self.row(i, row as u32));
-        }
-    }
-
-    /// Copy view `i` into uninitialised memory (a loaned shared-memory sample, say),
-    /// initialising all `image_size²` bytes of `dst`.
-    pub fn copy_frame_uninit(&self, i: usize, dst: &mut [std::mem::MaybeUninit<u8>]) {
-        let size = self.image_size() as usize;
-        assert_eq!(dst.len(), size * size, "destination must hold one {size}×{size} frame");
-        for (row, chunk) in dst.chunks_exact_mut(size).enumerate() {
-            let src = self.row(i, row as u32);
-            // SAFETY: `chunk` and `src` are `size` bytes each and cannot overlap
-            // (one is mapped GPU memory, the other the caller's buffer); u8 has no
-            // invalid bit patterns, so writing initialises the chunk.
-            unsafe { std::ptr::copy_nonoverlapping(src.as_ptr(), chunk.as_mut_ptr().cast::<u8>(), size) };
-        }
-    }
-
-    /// View `i` as a new vector.
-    pub fn frame(&self, i: usize) -> Vec<u8> {
-        let size = self.image_size() as usize;
-        let mut v = vec![0; size * size];
-        self.copy_frame(i, &mut v);
-        v
-    }
-}
-
-impl Drop for Frames<'_> {
-    fn drop(&mut self) {
-        if self.view.take().is_some() {
-            self.renderer.readback.unmap();
-        }
     }
 }

@@ -26,6 +26,14 @@
 //! the whole op against candle's `conv2d` and finite differences on every path. The
 //! input is zero-padded once per sample ([`pad_frames`]), so no kernel has bounds
 //! logic for the padding.
+//!
+//! Length: one kernel family read top to bottom (over the project's 600-line limit
+//! on purpose): the entry points with their instruction-set dispatch, the index
+//! helpers every variant shares, the vector kernels, then the portable kernels
+//! those must agree with. The portable loops are the baseline path and the tests'
+//! reference for the same blocks, and the helpers define the offsets all of them
+//! read, so a split would put a kernel and the definition it is checked against in
+//! different files.
 
 use std::ops::Range;
 

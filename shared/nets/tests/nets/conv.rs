@@ -1,19 +1,11 @@
 //! The channel-last convolution kernel against independent values: central finite
 //! differences (exact for a linear op up to rounding) and candle's own `conv2d`, on
-//! every instruction-set path of this CPU (the binary re-runs itself per path).
+//! every instruction-set path of this CPU (the binary re-runs itself per path, `main.rs`).
 
 use candle_core::{Device, Tensor, Var};
 use pednav_nets::ops::{ConvSpec, conv, conv_reference};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
-
-mod common;
-
-/// Every test of this file also passes on the other instruction-set paths.
-#[test]
-fn every_test_here_passes_on_every_instruction_set() {
-    common::rerun_on_every_other_isa("every_test_here_passes_on_every_instruction_set");
-}
 
 fn random(rng: &mut ChaCha8Rng, shape: &[usize]) -> Tensor {
     let n: usize = shape.iter().product();

@@ -12,10 +12,19 @@
 //!
 //! Coordinates: metres, `x` east, `y` north, `z` up; yaw in degrees in the scene
 //! file (radians everywhere in code), 0° facing +x (east), counter-clockwise positive.
+//!
+//! Layout: this module holds [`Scene`] itself and its construction and validation
+//! ([`Scene::from_spec`]) with the built-in scenes; `spec` holds the file's schema
+//! ([`SceneSpec`] and its parts), `resolved` the shapes a scene is resolved into
+//! ([`Region`], [`Obstacle`], [`Footprint`]), `pose` the agent [`Pose`] and
+//! [`wrap_angle`], and `queries` what the rest of the simulator asks a scene.
+
+mod pose;
+mod queries;
+mod resolved;
+mod spec;
 
 use std::path::Path;
-
-use serde::{Deserialize, Serialize};
 
 pub use crate::appearance::{
     Facade, GroundFloor, Overhead, OverheadSpec, Paving, PavingSpec, PavingStyle, WindowStyle,
@@ -26,17 +35,22 @@ pub use crate::geometry::{Area, MAX_HEIGHT, Polygon, Rect};
 use crate::geometry::{invalid, resolve_rect};
 pub use crate::region_kind::RegionKind;
 pub use crate::reward::Rewards;
+pub use pose::{Pose, wrap_angle};
+pub use resolved::{Footprint, Obstacle, Region};
+pub use spec::{
+    Axis, DEFAULT_CROWN_RADIUS, Marking, ObstacleKind, ObstacleSpec, PoseSpec, RegionSpec, SceneSpec, ValidationPoint,
+};
 
 /// The reference corner crossing, compiled into the binary: the intersection whose
 /// four corners each look like themselves (see `scenes/corner.toml`).
-pub const REFERENCE_SCENE_TOML: &str = include_str!("../scenes/corner.toml");
+pub const REFERENCE_SCENE_TOML: &str = include_str!("../../scenes/corner.toml");
 
 /// The reference scene as it was before its corners were told apart: the same
 /// roads, regions, curriculum areas and validation points, with look-alike corners
 /// (nearly four-fold symmetric from the pedestrian's eye). Kept to compare learning
 /// on the two, and to reproduce and re-evaluate results trained on it
 /// (`scene = "built-in:corner_plain"`).
-pub const PLAIN_SCENE_TOML: &str = include_str!("../scenes/corner_plain.toml");
+pub const PLAIN_SCENE_TOML: &str = include_str!("../../scenes/corner_plain.toml");
 
 /// How a config or a command line names a scene compiled into the binary:
 /// `built-in:<name>`, with a name of [`BUILT_IN_SCENES`].
@@ -54,285 +68,6 @@ pub fn is_built_in(path: &Path) -> bool {
 /// along either side of the world: 8192 is the 2D texture side every wgpu backend
 /// supports by default, and 8192² cells (64 Mi labels) is already 64 MiB per process.
 pub const MAX_MAP_CELLS: usize = 8192;
-
-/// Axis along which a pedestrian walks over a zebra crossing; the stripes
-/// alternate along it (each stripe is long across this axis).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "snake_case")]
-pub enum Axis {
-    /// Walking direction along x.
-    X,
-    /// Walking direction along y.
-    Y,
-}
-
-/// A ground region as written in the scene file.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct RegionSpec {
-    /// What the region is.
-    pub kind: RegionKind,
-    /// Outline as a rectangle `[x_min, y_min, x_max, y_max]`.
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub rect: Option<[f32; 4]>,
-    /// Outline as a polygon.
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub polygon: Option<Vec<[f32; 2]>>,
-    /// Zebra crossings only: the axis a pedestrian walks along over the crossing.
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub walk_axis: Option<Axis>,
-}
-
-/// A resolved ground region (polygon form).
-#[derive(Debug, Clone, PartialEq)]
-pub struct Region {
-    /// What the region is.
-    pub kind: RegionKind,
-    /// Its outline.
-    pub polygon: Polygon,
-    /// Zebra crossings only: walking axis (stripes alternate along it).
-    pub walk_axis: Option<Axis>,
-}
-
-/// Kind of a static obstacle; decides its look and how it is drawn on the map.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "snake_case")]
-pub enum ObstacleKind {
-    /// A building block (box).
-    Building,
-    /// A lamp or traffic-light pole (cylinder).
-    Pole,
-    /// A bench (box, low).
-    Bench,
-    /// A tree: the collider is the trunk cylinder; a crown is drawn above head height.
-    Tree,
-    /// A boundary wall at the edge of the world (generated, not written in files).
-    Wall,
-}
-
-/// A static obstacle as written in the scene file: either a box
-/// (`rect` footprint) or a vertical cylinder (`center` + `radius`).
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct ObstacleSpec {
-    /// What the obstacle is.
-    pub kind: ObstacleKind,
-    /// Box footprint `[x_min, y_min, x_max, y_max]`.
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub rect: Option<[f32; 4]>,
-    /// Cylinder centre `[x, y]`.
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub center: Option<[f32; 2]>,
-    /// Cylinder radius in metres.
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub radius: Option<f32>,
-    /// Height in metres.
-    pub height: f32,
-    /// Grey level in [0, 1] of its lit faces.
-    pub shade: f32,
-    /// Buildings only: how its walls look (default: a plain grid of windows).
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub facade: Option<Facade>,
-    /// Trees only: radius of the crown drawn above head height, metres (default 1.4).
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub crown_radius: Option<f32>,
-}
-
-/// Crown radius of a tree whose scene entry gives none, metres.
-pub const DEFAULT_CROWN_RADIUS: f32 = 1.4;
-
-/// Footprint of a resolved obstacle.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub enum Footprint {
-    /// Axis-aligned box.
-    Box(Rect),
-    /// Vertical cylinder.
-    Cylinder {
-        /// Centre on the ground.
-        center: [f32; 2],
-        /// Radius in metres.
-        radius: f32,
-    },
-}
-
-impl Footprint {
-    /// Bounding box on the ground.
-    pub fn bounds(&self) -> Rect {
-        match *self {
-            Footprint::Box(r) => r,
-            Footprint::Cylinder { center, radius } => {
-                Rect { min: [center[0] - radius, center[1] - radius], max: [center[0] + radius, center[1] + radius] }
-            }
-        }
-    }
-
-    /// Distance from a point to the footprint (0 inside).
-    pub fn distance(&self, x: f32, y: f32) -> f32 {
-        match *self {
-            Footprint::Box(r) => {
-                let dx = (r.min[0] - x).max(0.0).max(x - r.max[0]);
-                let dy = (r.min[1] - y).max(0.0).max(y - r.max[1]);
-                (dx * dx + dy * dy).sqrt()
-            }
-            Footprint::Cylinder { center, radius } => {
-                (((x - center[0]).powi(2) + (y - center[1]).powi(2)).sqrt() - radius).max(0.0)
-            }
-        }
-    }
-}
-
-/// A resolved static obstacle.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct Obstacle {
-    /// What it is.
-    pub kind: ObstacleKind,
-    /// Where it stands.
-    pub footprint: Footprint,
-    /// Height in metres.
-    pub height: f32,
-    /// Grey level of lit faces.
-    pub shade: f32,
-    /// How its walls look (buildings; the default for everything else).
-    pub facade: Facade,
-    /// Radius of the drawn crown (trees; 0 for everything else).
-    pub crown_radius: f32,
-}
-
-/// A painted line on the road (lane divider); purely visual.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct Marking {
-    /// Start point.
-    pub from: [f32; 2],
-    /// End point.
-    pub to: [f32; 2],
-    /// Line width in metres.
-    pub width: f32,
-    /// Painted length of each dash in metres (0 = solid line).
-    #[serde(default)]
-    pub dash: f32,
-    /// Gap between dashes in metres.
-    #[serde(default)]
-    pub gap: f32,
-}
-
-/// A start pose as written in the scene file (yaw in degrees).
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct PoseSpec {
-    /// x in metres.
-    pub x: f32,
-    /// y in metres.
-    pub y: f32,
-    /// Yaw in degrees, 0 = east, counter-clockwise.
-    pub yaw_deg: f32,
-}
-
-/// Wrap an angle to (−π, π].
-pub fn wrap_angle(a: f32) -> f32 {
-    let two_pi = std::f32::consts::TAU;
-    let mut r = a.rem_euclid(two_pi);
-    if r > std::f32::consts::PI {
-        r -= two_pi;
-    }
-    r
-}
-
-/// An agent pose on the ground plane (yaw in radians).
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
-pub struct Pose {
-    /// x in metres.
-    pub x: f32,
-    /// y in metres.
-    pub y: f32,
-    /// Body yaw in radians, 0 = east, counter-clockwise.
-    pub yaw: f32,
-}
-
-impl Pose {
-    /// A pose from metres and degrees.
-    pub fn from_degrees(x: f32, y: f32, yaw_deg: f32) -> Pose {
-        Pose { x, y, yaw: yaw_deg.to_radians() }
-    }
-}
-
-impl From<PoseSpec> for Pose {
-    fn from(p: PoseSpec) -> Pose {
-        Pose::from_degrees(p.x, p.y, p.yaw_deg)
-    }
-}
-
-/// One of the validation points of the paper's §V-C / Fig. 5a.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct ValidationPoint {
-    /// Index 0..13; 0–7 are interpolated (inside the curriculum region,
-    /// difficulty rising with the index), 8–13 extrapolated (outside it).
-    pub id: u32,
-    /// x in metres.
-    pub x: f32,
-    /// y in metres.
-    pub y: f32,
-    /// The favourable yaw in degrees (used for the documented oracle figure).
-    pub favourable_yaw_deg: f32,
-}
-
-/// The scene file's schema.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct SceneSpec {
-    /// Short name, used in logs and output names.
-    pub name: String,
-    /// One-paragraph description.
-    #[serde(default)]
-    pub description: String,
-    /// World bounds `[x_min, y_min, x_max, y_max]`; boundary walls stand on its edges.
-    pub extent: [f32; 4],
-    /// Cell size of the region (reward) map and the ground texture, in metres.
-    pub cell_size: f32,
-    /// Height of the generated boundary walls in metres.
-    #[serde(default = "default_wall_height")]
-    pub wall_height: f32,
-    /// The reward's numbers (the rules are in [`crate::reward`]).
-    pub rewards: Rewards,
-    /// Ground regions in paint order: a later region overrides an earlier one where
-    /// they overlap. Cells covered by none are road.
-    pub regions: Vec<RegionSpec>,
-    /// Static obstacles.
-    #[serde(default)]
-    pub obstacles: Vec<ObstacleSpec>,
-    /// Painted road markings (visual only).
-    #[serde(default)]
-    pub markings: Vec<Marking>,
-    /// Paved areas of sidewalk in paint order (visual only: a later one overrides an
-    /// earlier one; sidewalk cells covered by none get the default slabs).
-    #[serde(default, skip_serializing_if = "Vec::is_empty")]
-    pub paving: Vec<PavingSpec>,
-    /// Details hung over the pedestrians' heads: awnings, signs, canopies, balconies
-    /// (visual only, no collider).
-    #[serde(default, skip_serializing_if = "Vec::is_empty")]
-    pub overhead: Vec<OverheadSpec>,
-    /// The easiest pose, used before the curriculum's PassFirstTask gate opens.
-    pub first_task: PoseSpec,
-    /// The fixed start of the Non-ACL variants (validation point 3).
-    pub fixed_start: PoseSpec,
-    /// The region the curriculum samples start positions from (union of areas). It
-    /// also defines the protocol's classes: validation points 0–7 lie inside it
-    /// (interpolated), 8–13 outside (extrapolated).
-    pub curriculum_region: Vec<Area>,
-    /// Further areas the curriculum may propose starts in when a run sets
-    /// `curriculum.enlarged_region = true` — the paper's "enlarged ACL-proposed
-    /// regions" (§V-C), which bring the extrapolated points' surroundings into
-    /// training. They do not change which validation points count as extrapolated.
-    #[serde(default, skip_serializing_if = "Vec::is_empty")]
-    pub enlarged_curriculum_region: Vec<Area>,
-    /// The 14 validation points.
-    pub validation_points: Vec<ValidationPoint>,
-}
-
-fn default_wall_height() -> f32 {
-    3.0
-}
 
 /// A validated scene; see the module docs for the invariant.
 #[derive(Debug, Clone)]
@@ -647,83 +382,11 @@ impl Scene {
         Ok(scene)
     }
 
-    /// Agent radius used to decide whether a start pose is clear of obstacles.
-    pub const START_CLEARANCE: f32 = 0.35;
-
     fn check_start(&self, field: &str, pose: Pose) -> Result<()> {
         self.check_task(pose).map_err(|e| match e {
             SimError::InvalidTask { message, .. } => invalid(&self.origin, field, message),
             other => other,
         })
-    }
-
-    /// Check that a pose can start an episode: inside the world, clear of
-    /// obstacles by [`Scene::START_CLEARANCE`], not inside the goal.
-    pub fn check_task(&self, pose: Pose) -> Result<()> {
-        let err = |message: String| SimError::InvalidTask { x: pose.x, y: pose.y, message };
-        if !(pose.x.is_finite() && pose.y.is_finite() && pose.yaw.is_finite()) {
-            return Err(err("pose is not finite".into()));
-        }
-        if !self.extent.contains(pose.x, pose.y) {
-            return Err(err(format!("outside the world {:?}..{:?}", self.extent.min, self.extent.max)));
-        }
-        if let Some(o) = self.obstacles.iter().find(|o| o.footprint.distance(pose.x, pose.y) < Self::START_CLEARANCE) {
-            return Err(err(format!("inside or touching a {:?} obstacle", o.kind)));
-        }
-        if self.region_kind_exact(pose.x, pose.y) == RegionKind::Goal {
-            return Err(err("already inside the goal area".into()));
-        }
-        Ok(())
-    }
-
-    /// Region kind at a point by exact polygon tests (the region map rasterises this).
-    pub fn region_kind_exact(&self, x: f32, y: f32) -> RegionKind {
-        self.regions.iter().rev().find(|r| r.polygon.contains(x, y)).map(|r| r.kind).unwrap_or(RegionKind::Road)
-    }
-
-    /// Is the point on a painted (white) stripe of a zebra crossing? Stripes are
-    /// 0.5 m wide and alternate with 0.5 m of asphalt along the crossing's walking
-    /// axis; the zebra is the last one in paint order containing the point.
-    pub fn on_zebra_stripe(&self, x: f32, y: f32) -> bool {
-        let zebra = self.regions.iter().rev().find(|r| r.kind == RegionKind::Zebra && r.polygon.contains(x, y));
-        let Some(axis) = zebra.and_then(|r| r.walk_axis) else { return false };
-        let along = match axis {
-            Axis::X => x,
-            Axis::Y => y,
-        };
-        along.rem_euclid(1.0) < 0.5
-    }
-
-    /// Is the point inside the curriculum region?
-    pub fn in_curriculum_region(&self, x: f32, y: f32) -> bool {
-        self.curriculum_region.iter().any(|p| p.contains(x, y))
-    }
-
-    /// The areas the curriculum proposes starts in: the curriculum region, plus the
-    /// enlarged region's areas when `enlarged` (empty when the scene has none).
-    pub fn proposal_region(&self, enlarged: bool) -> Vec<Polygon> {
-        let extra = if enlarged { &self.enlarged_curriculum_region[..] } else { &[] };
-        self.curriculum_region.iter().chain(extra).cloned().collect()
-    }
-
-    /// The first task (easiest pose before PassFirstTask).
-    pub fn first_task(&self) -> Pose {
-        self.spec.first_task.into()
-    }
-
-    /// The fixed start of the Non-ACL variants.
-    pub fn fixed_start(&self) -> Pose {
-        self.spec.fixed_start.into()
-    }
-
-    /// The validation points.
-    pub fn validation_points(&self) -> &[ValidationPoint] {
-        &self.spec.validation_points
-    }
-
-    /// The reward's numbers of this scene (see [`crate::reward`]).
-    pub fn rewards(&self) -> &Rewards {
-        &self.spec.rewards
     }
 }
 

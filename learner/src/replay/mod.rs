@@ -32,10 +32,13 @@
 //! `pednav-run check` multiplies out for its memory estimate;
 //! [`DualReplay::stored_bytes`] counts what is actually held and is tested equal to it.
 
+mod batch;
+mod ring;
+
 use std::collections::HashMap;
 
-use candle_core::{Device, Tensor};
-use pednav_nets::{ACTION_DIM, Transitions};
+use candle_core::Device;
+use pednav_nets::ACTION_DIM;
 use rand::Rng;
 use rand_chacha::ChaCha8Rng;
 
@@ -45,6 +48,11 @@ pub use pednav_config::{FrameKind, ReplayConfig, ReplayFootprint};
 const _: () = assert!(pednav_config::replay::ACTION_VALUES == ACTION_DIM);
 
 use crate::error::{LearnerError, Result, config_error};
+
+use batch::BatchBuilder;
+use ring::{Frames, NONE, Sequence, StepRing, write_slot};
+
+pub use batch::{Batch, shift_frames};
 
 /// A frame as handed to the replay.
 #[derive(Debug, Clone, Copy)]
@@ -73,113 +81,6 @@ pub struct Step<'a> {
     /// The simulator's state vector at this observation (a training target only;
     /// required by a replay built [`DualReplay::with_state_targets`], else ignored).
     pub state_target: Option<&'a [f32]>,
-}
-
-const NONE: u64 = u64::MAX;
-
-enum Frames {
-    U8(Vec<u8>),
-    F32(Vec<f32>),
-}
-
-impl Frames {
-    fn new(kind: FrameKind) -> Frames {
-        match kind {
-            FrameKind::Pixels { .. } => Frames::U8(Vec::new()),
-            FrameKind::State { .. } => Frames::F32(Vec::new()),
-        }
-    }
-    /// Write `frame` at slot `slot` (appending when the slot is new).
-    fn put(&mut self, slot: usize, len: usize, frame: Frame<'_>) -> Result<()> {
-        match (self, frame) {
-            (Frames::U8(v), Frame::Pixels(p)) if p.len() == len => write_slot(v, slot, p),
-            (Frames::F32(v), Frame::State(s)) if s.len() == len => write_slot(v, slot, s),
-            _ => {
-                return Err(LearnerError::Replay(format!(
-                    "frame does not match the replay's frame kind (length {len})"
-                )));
-            }
-        }
-        Ok(())
-    }
-    /// Append the frame at `slot` to `out` as f32 (pixels scaled to [0, 1]).
-    fn read(&self, slot: usize, len: usize, out: &mut Vec<f32>) {
-        match self {
-            Frames::U8(v) => out.extend(v[slot * len..(slot + 1) * len].iter().map(|&p| p as f32 / 255.0)),
-            Frames::F32(v) => out.extend_from_slice(&v[slot * len..(slot + 1) * len]),
-        }
-    }
-    fn copy_to(&self, slot: usize, len: usize, dst: &mut Frames, dst_slot: usize) {
-        match (self, dst) {
-            (Frames::U8(s), Frames::U8(d)) => write_slot(d, dst_slot, &s[slot * len..(slot + 1) * len]),
-            (Frames::F32(s), Frames::F32(d)) => write_slot(d, dst_slot, &s[slot * len..(slot + 1) * len]),
-            _ => unreachable!("pools share a frame kind"),
-        }
-    }
-}
-
-fn write_slot<T: Copy>(v: &mut Vec<T>, slot: usize, data: &[T]) {
-    let len = data.len();
-    if v.len() == slot * len {
-        v.extend_from_slice(data);
-    } else {
-        v[slot * len..(slot + 1) * len].copy_from_slice(data);
-    }
-}
-
-/// The step ring of the non-terminal pool.
-struct StepRing {
-    cap: usize,
-    frames: Frames,
-    prev: Vec<u64>,
-    action: Vec<[f32; ACTION_DIM]>,
-    reward: Vec<f32>,
-    terminal: Vec<bool>,
-    /// State targets, `target_dim` per slot (empty when the replay keeps none).
-    targets: Vec<f32>,
-    /// Global index of the next step.
-    head: u64,
-    /// Steps in the ring that are non-terminal transitions (non-first, non-terminal).
-    transitions: usize,
-}
-
-impl StepRing {
-    fn slot(&self, g: u64) -> usize {
-        (g % self.cap as u64) as usize
-    }
-    fn alive(&self, g: u64) -> bool {
-        g < self.head && g + self.cap as u64 >= self.head
-    }
-    fn is_transition(&self, slot: usize) -> bool {
-        self.prev[slot] != NONE && !self.terminal[slot]
-    }
-}
-
-/// A transition's N_h + 1 steps: times t+1−N_h … t+1, as ring indices or
-/// `None` before the episode start.
-struct Sequence {
-    steps: Vec<Option<u64>>,
-}
-
-/// A sampled batch.
-#[derive(Debug, Clone)]
-pub struct Batch {
-    /// The transitions (o_t, o_{t+1}), each transition's N_h + 1 frames held once:
-    /// `transitions.obs()` and `transitions.next_obs()` are views of them, and the
-    /// 3D-TCN encodes both in one pass ([`pednav_nets::Encoder::encode_transition`]).
-    pub transitions: Transitions,
-    /// Actions a_t (B, 3).
-    pub action: Tensor,
-    /// Rewards r_t (B).
-    pub reward: Tensor,
-    /// 1 where o_{t+1} is terminal (goal reached), else 0 (B).
-    pub done: Tensor,
-    /// o_t's state targets (B, dim), from a replay built [`DualReplay::with_state_targets`].
-    pub state_target: Option<Tensor>,
-    /// Normalised IS ratios η (B): terminal samples first, then non-terminal.
-    pub weight: Tensor,
-    /// N_T: how many of the B samples came from the terminal pool (the first ones).
-    pub n_terminal: usize,
 }
 
 /// Algorithm 2's split and IS ratios for pool sizes (|B_T|, |B_N|) and batch size N_B:
@@ -539,101 +440,6 @@ impl DualReplay {
         let m = max_shift as i64;
         let (dx, dy) = (rng.random_range(-m..=m), rng.random_range(-m..=m));
         *frames = shift_frames(frames, size, dx as isize, dy as isize);
-    }
-}
-
-/// Square frames of side `size`, concatenated, each shifted by (dx, dy) pixels with
-/// the edge replicated (DrQ's "pad by replication, then crop at a random offset"):
-/// `out[y][x] = in[clamp(y + dy)][clamp(x + dx)]`.
-pub fn shift_frames(frames: &[f32], size: usize, dx: isize, dy: isize) -> Vec<f32> {
-    let clamp = |v: isize| v.clamp(0, size as isize - 1) as usize;
-    let mut out = Vec::with_capacity(frames.len());
-    for frame in frames.chunks_exact(size * size) {
-        for y in 0..size {
-            let row = &frame[clamp(y as isize + dy) * size..][..size];
-            out.extend((0..size).map(|x| row[clamp(x as isize + dx)]));
-        }
-    }
-    out
-}
-
-/// Collects samples into batch tensors.
-struct BatchBuilder {
-    n: usize,
-    fl: usize,
-    b: usize,
-    /// Each transition's N_h + 1 frames.
-    frames: Vec<f32>,
-    /// Each transition's N_h actions and rewards (the newest are a_t, r_t).
-    actions: Vec<f32>,
-    rewards: Vec<f32>,
-    action: Vec<f32>,
-    reward: Vec<f32>,
-    done: Vec<f32>,
-    weight: Vec<f32>,
-    /// o_t's state targets, concatenated (empty without state targets).
-    targets: Vec<f32>,
-}
-
-impl BatchBuilder {
-    fn new(b: usize, n: usize, fl: usize) -> BatchBuilder {
-        BatchBuilder {
-            n,
-            fl,
-            b,
-            frames: Vec::with_capacity(b * (n + 1) * fl),
-            actions: Vec::with_capacity(b * n * ACTION_DIM),
-            rewards: Vec::with_capacity(b * n),
-            action: Vec::with_capacity(b * ACTION_DIM),
-            reward: Vec::with_capacity(b),
-            done: Vec::with_capacity(b),
-            weight: Vec::with_capacity(b),
-            targets: Vec::new(),
-        }
-    }
-
-    /// `frames`: N_h + 1 frames; `acts`/`rews`: the N_h history entries of the sequence.
-    fn add(&mut self, frames: &[f32], acts: &[[f32; ACTION_DIM]], rews: &[f32], done: f32, weight: f32) {
-        let n = self.n;
-        debug_assert_eq!(frames.len(), (n + 1) * self.fl);
-        self.frames.extend_from_slice(frames);
-        self.actions.extend(acts.iter().flatten());
-        self.rewards.extend_from_slice(rews);
-        self.action.extend_from_slice(&acts[n - 1]);
-        self.reward.push(rews[n - 1]);
-        self.done.push(done);
-        self.weight.push(weight);
-    }
-
-    fn finish(self, kind: FrameKind, n_terminal: usize, target_dim: usize, dev: &Device) -> Result<Batch> {
-        let (b, n) = (self.b, self.n);
-        let transitions = match kind {
-            FrameKind::Pixels { size } => Transitions::Pixels {
-                frames: Tensor::from_vec(self.frames, (b, n + 1, size, size), dev)?,
-                actions: Tensor::from_vec(self.actions, (b, n, ACTION_DIM), dev)?,
-                rewards: Tensor::from_vec(self.rewards, (b, n), dev)?,
-            },
-            FrameKind::State { dim } => {
-                // History 1: each transition is o_t's vector then o_{t+1}'s.
-                let pairs = Tensor::from_vec(self.frames, (b, 2, dim), dev)?;
-                Transitions::State {
-                    obs: pairs.narrow(1, 0, 1)?.reshape((b, dim))?,
-                    next: pairs.narrow(1, 1, 1)?.reshape((b, dim))?,
-                }
-            }
-        };
-        Ok(Batch {
-            transitions,
-            action: Tensor::from_vec(self.action, (b, ACTION_DIM), dev)?,
-            reward: Tensor::from_vec(self.reward, b, dev)?,
-            done: Tensor::from_vec(self.done, b, dev)?,
-            weight: Tensor::from_vec(self.weight, b, dev)?,
-            state_target: match target_dim {
-                0 => None,
-                d => Some(Tensor::from_vec(self.targets, (b, d), dev)?),
-            },
-            n_terminal,
-        })
     }
 }
 
