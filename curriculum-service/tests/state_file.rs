@@ -2,6 +2,7 @@
 //! damage, the previous generation kept by every save, the fallback to it, and a
 //! save interrupted after any of its steps (issue 18).
 
+use pednav_tests::damage::Damage;
 use pednav_tests::warnings::{self, logged_warnings};
 
 use std::collections::BTreeMap;
@@ -70,7 +71,7 @@ fn set_up(start: usize, path: &Path) {
         state(20).save(path).unwrap();
     }
     if start == 2 {
-        damage(path, "flip 4 bytes");
+        Damage::FlipBytes.apply(path).unwrap();
     }
 }
 
@@ -128,34 +129,6 @@ fn a_save_stopped_after_any_step_resumes_from_a_whole_state() {
     let _ = std::fs::remove_dir_all(&root);
 }
 
-/// Ways of damaging a file: a few bytes in the middle changed (flipped, replaced by
-/// digits, or one number's last digit changed, which keeps the JSON valid), cut to
-/// half its length, or removed.
-const DAMAGE: [&str; 5] = ["flip 4 bytes", "digits over 4 bytes", "one digit", "truncate to half", "remove"];
-
-fn damage(file: &Path, how: &str) {
-    let mut bytes = std::fs::read(file).unwrap();
-    let mid = bytes.len() / 2;
-    match how {
-        "flip 4 bytes" => bytes[mid..mid + 4].iter_mut().for_each(|b| *b ^= 0x5a),
-        "digits over 4 bytes" => {
-            let digits: &[u8] = if &bytes[mid..mid + 4] == b"7777" { b"8888" } else { b"7777" };
-            bytes[mid..mid + 4].copy_from_slice(digits);
-        }
-        // The last digit of the number nearest the middle: JSON stays valid and of
-        // the same types (a digit lowered, or 0 → 1), only a checksum can tell.
-        "one digit" => {
-            let last_digit = |i: usize| bytes[i].is_ascii_digit() && !bytes.get(i + 1).is_some_and(u8::is_ascii_digit);
-            let at = (0..bytes.len()).filter(|&i| last_digit(i)).min_by_key(|&i| i.abs_diff(mid)).unwrap_or(mid);
-            bytes[at] = if bytes[at] == b'0' { b'1' } else { b'0' };
-        }
-        "truncate to half" => bytes.truncate(mid),
-        "remove" => return std::fs::remove_file(file).unwrap(),
-        _ => unreachable!(),
-    }
-    std::fs::write(file, bytes).unwrap();
-}
-
 /// Each file of the saved state damaged in turn, each way: the newest damaged falls
 /// back to the previous generation with a warning naming the newest file; both
 /// damaged, the error names both files; the previous one alone damaged changes
@@ -171,22 +144,22 @@ fn each_damaged_state_file_falls_back_and_is_named() {
     state(10).save(&path).unwrap();
     state(20).save(&path).unwrap();
     let (newest_kept, prev_kept) = (std::fs::read(&path).unwrap(), std::fs::read(&prev).unwrap());
-    for how in DAMAGE {
-        damage(&path, how);
+    for how in Damage::ALL {
+        how.apply(&path).unwrap();
         let (resumed, warnings) = logged_warnings(|| resume(&path));
         assert_eq!(resumed, (10, prev.clone()), "{how}");
         assert!(
             warnings.len() == 1 && warnings[0].contains(&path.display().to_string()),
             "{how}: the warning names the file: {warnings:?}"
         );
-        damage(&prev, how);
+        how.apply(&prev).unwrap();
         let err = ServiceState::load_or_previous(&path).unwrap_err().to_string();
         for named in [&path, &prev] {
             assert!(err.contains(&named.display().to_string()), "{how}: the error names {}: {err}", named.display());
         }
         std::fs::write(&path, &newest_kept).unwrap();
         std::fs::write(&prev, &prev_kept).unwrap();
-        damage(&prev, how);
+        how.apply(&prev).unwrap();
         let (resumed, warnings) = logged_warnings(|| resume(&path));
         assert_eq!((resumed, warnings.len()), ((20, path.clone()), 0), "{how}: the previous one damaged");
         std::fs::write(&prev, &prev_kept).unwrap();
@@ -194,11 +167,11 @@ fn each_damaged_state_file_falls_back_and_is_named() {
 
     // A resume fell back to 10 (20 is damaged); the next save replaces the damaged
     // one, saying so, and keeps 10 as the previous generation.
-    damage(&path, "flip 4 bytes");
+    Damage::FlipBytes.apply(&path).unwrap();
     let ((), warnings) = logged_warnings(|| state(30).save(&path).unwrap());
     assert!(warnings.len() == 1 && warnings[0].contains(&path.display().to_string()), "{warnings:?}");
     assert_eq!(ServiceState::load(&prev).unwrap().next_task_id, 10);
-    damage(&path, "truncate to half");
+    Damage::TruncateToHalf.apply(&path).unwrap();
     assert_eq!(resume(&path), (10, prev.clone()));
     let _ = std::fs::remove_dir_all(&dir);
 }

@@ -10,6 +10,7 @@
 //! those of one save, never a mixture — names the damaged file, and the next save works.
 
 mod common;
+use pednav_tests::damage::Damage;
 use pednav_tests::warnings::{self, logged_warnings};
 
 use common::{small, state_batch};
@@ -310,34 +311,6 @@ fn a_save_stopped_after_any_step_resumes_from_a_whole_generation() {
     let _ = std::fs::remove_dir_all(&root);
 }
 
-/// Ways of damaging a file: a few bytes in the middle changed (flipped, replaced by
-/// digits, or one number's last digit changed, which keeps a JSON file valid), cut to
-/// half its length, or removed.
-const DAMAGE: [&str; 5] = ["flip 4 bytes", "digits over 4 bytes", "one digit", "truncate to half", "remove"];
-
-fn damage(file: &Path, how: &str) {
-    let mut bytes = std::fs::read(file).unwrap();
-    let mid = bytes.len() / 2;
-    match how {
-        "flip 4 bytes" => bytes[mid..mid + 4].iter_mut().for_each(|b| *b ^= 0x5a),
-        "digits over 4 bytes" => {
-            let digits: &[u8] = if &bytes[mid..mid + 4] == b"7777" { b"8888" } else { b"7777" };
-            bytes[mid..mid + 4].copy_from_slice(digits);
-        }
-        // The last digit of the number nearest the middle: JSON stays valid and of
-        // the same types (a digit lowered, or 0 → 1), only a checksum can tell.
-        "one digit" => {
-            let last_digit = |i: usize| bytes[i].is_ascii_digit() && !bytes.get(i + 1).is_some_and(u8::is_ascii_digit);
-            let at = (0..bytes.len()).filter(|&i| last_digit(i)).min_by_key(|&i| i.abs_diff(mid)).unwrap_or(mid);
-            bytes[at] = if bytes[at] == b'0' { b'1' } else { b'0' };
-        }
-        "truncate to half" => bytes.truncate(mid),
-        "remove" => return std::fs::remove_file(file).unwrap(),
-        _ => unreachable!(),
-    }
-    std::fs::write(file, bytes).unwrap();
-}
-
 /// Every file of the newest checkpoint damaged in turn, each way: the resume falls
 /// back to the previous generation with a warning naming the damaged file; the same
 /// file damaged in both generations: the error names both. Damage in the previous
@@ -361,9 +334,9 @@ fn every_damaged_file_falls_back_to_the_previous_generation_and_is_named() {
         let kept = std::fs::read(file).unwrap();
         let prev_file = prev.join(file.file_name().unwrap());
         let prev_kept = std::fs::read(&prev_file).unwrap();
-        for how in DAMAGE {
+        for how in Damage::ALL {
             let at = format!("{} ({how})", file.display());
-            damage(file, how);
+            how.apply(file).unwrap();
             let mut d = fresh();
             let (resumed, warnings) = logged_warnings(|| load_checkpoint_or_previous(&ck, &mut d));
             let (meta, loaded) = resumed.unwrap_or_else(|e| panic!("{at}: {e}"));
@@ -372,7 +345,7 @@ fn every_damaged_file_falls_back_to_the_previous_generation_and_is_named() {
                 warnings.len() == 1 && warnings[0].contains(&file.display().to_string()),
                 "{at}: the warning names the file: {warnings:?}"
             );
-            damage(&prev_file, how);
+            how.apply(&prev_file).unwrap();
             let err = load_checkpoint_or_previous(&ck, &mut fresh()).map(|_| ()).unwrap_err().to_string();
             for named in [file, &prev_file] {
                 assert!(err.contains(&named.display().to_string()), "{at}: the error names {}: {err}", named.display());
@@ -380,7 +353,7 @@ fn every_damaged_file_falls_back_to_the_previous_generation_and_is_named() {
             std::fs::write(file, &kept).unwrap();
             std::fs::write(&prev_file, &prev_kept).unwrap();
         }
-        damage(&prev_file, "flip 4 bytes");
+        Damage::FlipBytes.apply(&prev_file).unwrap();
         let mut d = fresh();
         let (resumed, warnings) = logged_warnings(|| load_checkpoint_or_previous(&ck, &mut d));
         let (meta, loaded) = resumed.unwrap();
@@ -391,11 +364,11 @@ fn every_damaged_file_falls_back_to_the_previous_generation_and_is_named() {
     // A resume fell back to generation 1 (2 is damaged); the next save replaces the
     // damaged one, saying so, and keeps 1 as the previous generation.
     let quantile = ck.join("quantile.safetensors");
-    damage(&quantile, "flip 4 bytes");
+    Damage::FlipBytes.apply(&quantile).unwrap();
     let ((), warnings) = logged_warnings(|| save(&ck, 3));
     assert!(warnings.len() == 1 && warnings[0].contains(&quantile.display().to_string()), "{warnings:?}");
     assert_eq!((generation_in(&ck), generation_in(&prev)), (3, 1));
-    damage(&ck.join("state.json"), "truncate to half");
+    Damage::TruncateToHalf.apply(&ck.join("state.json")).unwrap();
     let mut d = fresh();
     let (meta, loaded) = load_checkpoint_or_previous(&ck, &mut d).unwrap();
     assert_eq!((loaded_generation(&d, &meta), &loaded), (1, &prev));

@@ -1,11 +1,12 @@
 //! Helpers for pednav's tests: the end-to-end tests in `tests/tests/` drive the real
 //! binaries as a user would ([`run`]), so they check what the README promises; the
 //! fault tests of the learner and the curriculum service capture the warnings they
-//! provoke ([`warnings`]).
+//! provoke ([`warnings`]) and damage the files they saved ([`damage`]).
 //!
 //! Invariant: [`binary`] returns an executable of the running test's profile that
 //! is newer than every source file of its package.
 
+pub mod damage;
 pub mod run;
 pub mod warnings;
 

@@ -201,9 +201,14 @@ fn main() -> Result<()> {
         let mine = protocol::shard(&all, k, cli.of);
         let mut ev =
             Evaluator::new(cfg.scene()?, &cfg.sim, cli.t_max, gamma, cli.envs, kind(&cli), nets, cli.seed ^ k as u64)?;
-        let results = ev.run(&mine, |_| {})?;
         let out = cli.shard_out.as_ref().context("--shard needs --shard-out")?;
-        std::fs::write(out, serde_json::to_vec(&results)?)?;
+        // Episodes done so far, for the parent's progress line (best effort: a failed
+        // write costs the line, not the evaluation).
+        let count = shard_progress_path(out);
+        let results = ev.run(&mine, |done| {
+            let _ = std::fs::write(&count, done.to_string());
+        })?;
+        std::fs::write(out, serde_json::to_vec(&results)?).with_context(|| format!("writing {}", out.display()))?;
         return Ok(());
     }
 
@@ -233,22 +238,12 @@ fn main() -> Result<()> {
         cli.envs
     );
     let t0 = Instant::now();
+    let mut shown = Progress::new(all.len());
     let mut results: Vec<EpisodeResult> = if cli.workers == 1 {
         let mut ev = Evaluator::new(cfg.scene()?, &cfg.sim, cli.t_max, gamma, cli.envs, kind(&cli), nets, cli.seed)?;
-        let n = all.len();
-        let tty = std::io::stderr().is_terminal();
-        let mut last_line = Instant::now();
-        ev.run(&all, |done| {
-            let line = progress(done, n, t0.elapsed().as_secs_f64());
-            if tty && (done % 20 == 0 || done == n) {
-                eprint!("\r{line}");
-            } else if !tty && (last_line.elapsed().as_secs() >= 30 || done == n) {
-                eprintln!("{line}");
-                last_line = Instant::now();
-            }
-        })?
+        ev.run(&all, |done| shown.update(done))?
     } else {
-        run_workers(&cli, &out)?
+        run_workers(&cli, &out, &mut shown)?
     };
     let cr = if std::io::stderr().is_terminal() { "\r" } else { "" };
     eprintln!("{cr}  {} episodes in {:.0} s", results.len(), t0.elapsed().as_secs_f64());
@@ -278,10 +273,32 @@ fn main() -> Result<()> {
     );
     let text = t.render(&title);
     print!("{text}");
-    std::fs::write(out.join("table.txt"), &text)?;
-    t.write_csv(&out.join("table.csv"))?;
-    table::write_results_csv(&results, &out.join("results.csv"))?;
-    plots::trajectories(&cfg.scene()?, &results, &policy_name, &out.join("trajectories.png"))?;
+    // Each output on its own: a full disk or a read-only folder costs the files it
+    // refuses, never the others (the per-episode results first: the table and the plot
+    // can be made again from them).
+    let scene = cfg.scene()?;
+    type WriteTo<'a> = &'a dyn Fn(&Path) -> Result<()>;
+    let outputs: [(&str, WriteTo); 4] = [
+        ("results.csv", &|p| Ok(table::write_results_csv(&results, p)?)),
+        ("table.txt", &|p| Ok(std::fs::write(p, &text)?)),
+        ("table.csv", &|p| Ok(t.write_csv(p)?)),
+        ("trajectories.png", &|p| Ok(plots::trajectories(&scene, &results, &policy_name, p)?)),
+    ];
+    let failed: Vec<String> = outputs
+        .iter()
+        .filter_map(|(name, write)| {
+            let path = out.join(name);
+            write(&path).err().map(|e| format!("{}: {e:#}", path.display()))
+        })
+        .collect();
+    if !failed.is_empty() {
+        bail!(
+            "the evaluation finished (its table is printed above) but {} of its outputs could not be written:\n  {}\n\
+             free space or fix the folder's permissions and run the same command again",
+            failed.len(),
+            failed.join("\n  ")
+        );
+    }
     for spec in &cli.gif {
         let task = gif_task(spec, &all)?;
         let mut ev =
@@ -300,7 +317,45 @@ fn main() -> Result<()> {
     Ok(())
 }
 
-/// `  340/1120 episodes (212 s, ETA 00:08:07)`: episodes done, elapsed, and the time
+/// The evaluation's progress on stderr: on a terminal one line rewritten every 20
+/// episodes, otherwise a line every 30 s (and at the end), as in a log file.
+struct Progress {
+    n: usize,
+    t0: Instant,
+    tty: bool,
+    last_done: usize,
+    last_line: Instant,
+}
+
+impl Progress {
+    fn new(n: usize) -> Progress {
+        let now = Instant::now();
+        Progress { n, t0: now, tty: std::io::stderr().is_terminal(), last_done: 0, last_line: now }
+    }
+
+    fn update(&mut self, done: usize) {
+        if done == self.last_done {
+            return;
+        }
+        let line = progress(done, self.n, self.t0.elapsed().as_secs_f64());
+        if self.tty && (done / 20 != self.last_done / 20 || done == self.n) {
+            eprint!("\r{line}");
+        } else if !self.tty && (self.last_line.elapsed().as_secs() >= 30 || done == self.n) {
+            eprintln!("{line}");
+            self.last_line = Instant::now();
+        }
+        self.last_done = done;
+    }
+}
+
+/// Where a worker writes how many of its episodes are done.
+fn shard_progress_path(shard_out: &Path) -> PathBuf {
+    let mut name = shard_out.as_os_str().to_owned();
+    name.push(".done");
+    PathBuf::from(name)
+}
+
+/// `  340/1120 episodes (212 s, ETA 00:08:06)`: episodes done, elapsed, and the time
 /// left at the pace so far.
 fn progress(done: usize, n: usize, secs: f64) -> String {
     let eta = if done == 0 {
@@ -324,7 +379,7 @@ fn gif_task(spec: &str, all: &[EvalTask]) -> Result<EvalTask> {
         .with_context(|| format!("--gif {spec}: no such episode in the task list"))
 }
 
-fn run_workers(cli: &Cli, out: &Path) -> Result<Vec<EpisodeResult>> {
+fn run_workers(cli: &Cli, out: &Path, shown: &mut Progress) -> Result<Vec<EpisodeResult>> {
     let exe = std::env::current_exe()?;
     let mut children = Vec::new();
     for k in 0..cli.workers {
@@ -355,15 +410,58 @@ fn run_workers(cli: &Cli, out: &Path) -> Result<Vec<EpisodeResult>> {
             .arg(&shard_out);
         children.push((cmd.spawn().context("starting a worker")?, shard_out));
     }
+    // Wait for all of them, showing the episodes they have done between them.
+    let mut exited = vec![None; children.len()];
+    while exited.iter().any(Option::is_none) {
+        for (k, (c, _)) in children.iter_mut().enumerate() {
+            if exited[k].is_none() {
+                exited[k] = c.try_wait().context("waiting for a worker")?;
+            }
+        }
+        let done: usize = children
+            .iter()
+            .filter_map(|(_, path)| {
+                std::fs::read_to_string(shard_progress_path(path)).ok()?.trim().parse::<usize>().ok()
+            })
+            .sum();
+        shown.update(done);
+        if exited.iter().any(Option::is_none) {
+            std::thread::sleep(std::time::Duration::from_millis(500));
+        }
+    }
     let mut results = Vec::new();
-    for (mut c, path) in children {
-        let status = c.wait()?;
+    for ((_, path), status) in children.iter().zip(exited) {
+        let status = status.expect("every worker has exited");
+        let _ = std::fs::remove_file(shard_progress_path(path));
         if !status.success() {
             bail!("worker {} failed ({status})", path.display());
         }
-        let part: Vec<EpisodeResult> = serde_json::from_slice(&std::fs::read(&path)?)?;
+        let read = std::fs::read(path).with_context(|| format!("reading {}", path.display()))?;
+        let part: Vec<EpisodeResult> =
+            serde_json::from_slice(&read).with_context(|| format!("parsing {}", path.display()))?;
         results.extend(part);
-        let _ = std::fs::remove_file(&path);
+        let _ = std::fs::remove_file(path);
     }
     Ok(results)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_eta_is_the_time_left_at_the_pace_so_far() {
+        // 340 of 1120 episodes in 212 s: 780 left at 0.6235 s each = 486 s.
+        assert_eq!(progress(340, 1120, 212.0), "  340/1120 episodes (212 s, ETA 00:08:06)");
+        assert_eq!(progress(0, 1120, 3.0), "  0/1120 episodes (3 s, ETA —)");
+        assert_eq!(progress(1120, 1120, 500.0), "  1120/1120 episodes (500 s, ETA 00:00:00)");
+    }
+
+    #[test]
+    fn a_workers_count_sits_beside_its_shard() {
+        assert_eq!(
+            shard_progress_path(Path::new("eval/learned/.shard1.json")),
+            Path::new("eval/learned/.shard1.json.done")
+        );
+    }
 }

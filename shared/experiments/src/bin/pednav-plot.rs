@@ -504,7 +504,10 @@ fn main() -> Result<()> {
                 learner(std::slice::from_ref(&run_dir), &run_dir.join("plots").join("learner.png"))?;
             }
             let cfg = RunConfig::load(&run_dir.join("config.toml"))?;
-            if cfg.curriculum.variant != pednav_curriculum::Variant::FixedStart {
+            // Snapshots exist once a curriculum run has reported 500 episodes (and in a
+            // results folder only where they were kept).
+            let has_snapshots = RunDir::new(&run_dir).curriculum_snapshots().is_dir();
+            if cfg.curriculum.variant != pednav_curriculum::Variant::FixedStart && has_snapshots {
                 curriculum(&run_dir, &run_dir.join("plots").join("curriculum_snapshots.png"), 6)?;
             }
             Ok(())
