@@ -247,8 +247,8 @@ fn two_runs_side_by_side_do_not_interfere_and_stop_at_their_budget() {
 /// Env steps (received by the learner) within which the state preset must open the
 /// gate below: with one critic it opened after 390,297, 112,174 and 110,437 decision steps
 /// for seeds 3, 4 and 5 (2 actors; 783, 139 and 111 s on a 2-core Xeon), so the budget is
-/// 2× the slowest; the test runs seed 4 (196,459 steps in another run of it, 480 s on a
-/// 2-core AMD EPYC: the actors' policy lag makes runs of one seed differ).
+/// 2× the slowest; the test runs seed 4 (196,459 and 116,415 steps in two later runs of
+/// it on a 2-core AMD EPYC: the actors' policy lag makes runs of one seed differ).
 const LEARNING_STEP_BUDGET: u64 = 800_000;
 
 /// The loop learns, over the real processes: from the state observation
