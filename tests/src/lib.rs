@@ -6,6 +6,8 @@
 //! Invariant: [`binary`] returns an executable of the running test's profile that
 //! is newer than every source file of its package.
 
+#![warn(missing_docs)]
+
 pub mod damage;
 pub mod run;
 pub mod warnings;
