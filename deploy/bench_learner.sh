@@ -20,7 +20,7 @@ torch=../shared/bench/torch_ref/bench.sh
 export CARGO_BUILD_JOBS="${CARGO_BUILD_JOBS:-2}"
 cargo bench --locked -p pednav-learner --bench dsac_update --no-run 2>&1 | tail -1
 bin=$(cargo bench --locked -p pednav-learner --bench dsac_update --no-run --message-format=json 2>/dev/null \
-  | sed -n 's/.*"executable":"\([^"]*\)".*/\1/p' | tail -1)
+  | sed -n 's/.*"executable":"\([^"]*\)".*/\1/p' | grep "/dsac_update-[^/]*$" | tail -1)
 [ -x "$bin" ] || { echo "error: could not locate the dsac_update bench binary" >&2; exit 1; }
 paths=()
 grep -qw fma /proc/cpuinfo && grep -qw avx2 /proc/cpuinfo && paths+=(avx2)

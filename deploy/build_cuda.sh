@@ -108,7 +108,7 @@ if [ "$mode" = bins ]; then
     exit 0
 fi
 bench=$(cargo bench --locked --target-dir "$target" "${features[@]}" -p pednav-learner --bench dsac_update --no-run \
-    --message-format=json 2>/dev/null | sed -n 's/.*"executable":"\([^"]*\)".*/\1/p' | tail -1)
+    --message-format=json 2>/dev/null | sed -n 's/.*"executable":"\([^"]*\)".*/\1/p' | grep "/dsac_update-[^/]*$" | tail -1)
 [ -x "$bench" ] || { echo "error: the dsac_update bench did not build" >&2; exit 1; }
 out="$target/bin"
 mkdir -p "$out"

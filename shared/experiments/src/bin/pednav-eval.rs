@@ -237,7 +237,6 @@ fn main() -> Result<()> {
         cli.workers,
         cli.envs
     );
-    let t0 = Instant::now();
     let mut shown = Progress::new(all.len());
     let mut results: Vec<EpisodeResult> = if cli.workers == 1 {
         let mut ev = Evaluator::new(cfg.scene()?, &cfg.sim, cli.t_max, gamma, cli.envs, kind(&cli), nets, cli.seed)?;
@@ -245,8 +244,8 @@ fn main() -> Result<()> {
     } else {
         run_workers(&cli, &out, &mut shown)?
     };
-    let cr = if std::io::stderr().is_terminal() { "\r" } else { "" };
-    eprintln!("{cr}  {} episodes in {:.0} s", results.len(), t0.elapsed().as_secs_f64());
+    let cr = if shown.tty { "\r" } else { "" };
+    eprintln!("{cr}  {} episodes in {:.0} s", results.len(), shown.t0.elapsed().as_secs_f64());
     let order = |r: &EpisodeResult| (r.point, YAWS_DEG.iter().position(|&y| y == r.yaw_deg).unwrap_or(99), r.run);
     results.sort_by_key(order);
 
