@@ -54,6 +54,10 @@ pub struct CheckpointMeta {
     /// (`dsac.state_aux_weight` > 0; absent in older checkpoints: `false`).
     #[serde(default)]
     pub state_head: bool,
+    /// Whether the checkpoint holds the contrastive head and its optimiser
+    /// (`dsac.contrast_weight` > 0; absent in older checkpoints: `false`).
+    #[serde(default)]
+    pub contrast_head: bool,
     /// Updates applied.
     pub updates: u64,
     /// Updates skipped by the non-finite guard.
@@ -201,6 +205,7 @@ fn write_generation(
         nets: dsac.nets.cfg.clone(),
         twin_critics: dsac.nets.twin.is_some(),
         state_head: dsac.nets.state_head.is_some(),
+        contrast_head: dsac.nets.contrast_head.is_some(),
         updates: dsac.updates,
         skipped: dsac.skipped,
         optimizer_steps,
@@ -439,6 +444,16 @@ pub fn load_checkpoint(dir: &Path, dsac: &mut Dsac) -> Result<CheckpointMeta> {
             dir,
             format!(
                 "it {has} state-prediction head and the learner is configured with `dsac.state_aux_weight` {wants}: \
+                 resume with the setting the run was started with"
+            ),
+        ));
+    }
+    if meta.contrast_head != dsac.nets.contrast_head.is_some() {
+        let (has, wants) = if meta.contrast_head { ("has a", "0") } else { ("has no", "> 0") };
+        return Err(ck_err(
+            dir,
+            format!(
+                "it {has} contrastive head and the learner is configured with `dsac.contrast_weight` {wants}: \
                  resume with the setting the run was started with"
             ),
         ));

@@ -5,7 +5,9 @@
 //! One update, with η the IS ratios of the batch and α = exp(log α) held fixed:
 //! - target: a′ ~ π(·|s′), τ̂′ from the fraction net at (s′, a′),
 //!   yⱼ = r + γ(1 − d)(Z_target(s′, a′, τ̂′ⱼ) − α log π(a′|s′)) — the goal (d = 1)
-//!   does not bootstrap; truncation at T_max is not terminal and does;
+//!   does not bootstrap; truncation at T_max is not terminal and does. With n-step
+//!   transitions (`n_step` n > 1) r is the batch's return Σ_{k<n} γᵏ r_{t+k}, s′ is
+//!   s_{t+n} and γ becomes γⁿ (d = 1 when the goal comes within the n steps);
 //! - critic: quantile Huber loss between Z(s, a, τ̂ᵢ) and yⱼ, weighted by the target
 //!   fraction widths (as DSAC), per-sample, then Σ η·ℓ / B;
 //! - fractions: FQF's W₁ gradient ∂W₁/∂τᵢ = 2Z(τᵢ) − Z(τ̂ᵢ₋₁) − Z(τ̂ᵢ) (detached) times τᵢ;
@@ -22,6 +24,12 @@
 //! features: ℓ_s = (1/B) Σ_b ‖ŝ_b − s_b‖² (unweighted by η: it is not an RL loss),
 //! and the critic's gradient is taken of ℓ_Z + λ·ℓ_s, so the encoder it trains
 //! learns to carry the state; the head steps with its own optimiser.
+//!
+//! With the temporal contrastive loss (`contrast_weight` λ_c > 0, self-supervised)
+//! the anchors are the quantile net's o_t features, the positives the target
+//! encoder's o_{t+n} features of the TD target (detached), and ℓ_c is InfoNCE over
+//! the batch ([`pednav_nets::ContrastHead::info_nce`], unweighted by η); the critic's
+//! gradient is taken of ℓ_Z + λ·ℓ_s + λ_c·ℓ_c.
 //!
 //! Invariant: every loss is computed with the pre-update weights and all gradients
 //! are taken before any optimiser steps; if any loss or gradient is non-finite the
@@ -106,6 +114,9 @@ pub struct UpdateStats {
     pub q_mean: f64,
     /// State-prediction loss ℓ_s (0 when the auxiliary loss is off).
     pub state_loss: f64,
+    /// Temporal contrastive loss ℓ_c (0 when it is off; ln B for features that tell
+    /// the batch's transitions apart no better than chance).
+    pub contrast_loss: f64,
     /// Gradient norm of the quantile net (before clipping).
     pub critic_grad_norm: f64,
     /// Gradient norm of the policy (before clipping).
@@ -129,6 +140,8 @@ pub struct Dsac {
     pub(crate) opt_quantile2: Option<AdamW>,
     /// The state head's optimiser (state-prediction auxiliary loss only).
     pub(crate) opt_state_head: Option<AdamW>,
+    /// The contrastive head's optimiser (temporal contrastive loss only).
+    pub(crate) opt_contrast_head: Option<AdamW>,
     pub(crate) opt_alpha: AdamW,
     /// Noise for policy samples (seeded; saved in checkpoints).
     pub rng: ChaCha8Rng,
@@ -156,6 +169,7 @@ impl Dsac {
             opt_quantile: opt(&nets.quantile.store, cfg.lr_quantile)?,
             opt_quantile2: nets.twin.as_ref().map(|t| opt(&t.quantile.store, cfg.lr_quantile)).transpose()?,
             opt_state_head: nets.state_head.as_ref().map(|h| opt(&h.store, cfg.lr_quantile)).transpose()?,
+            opt_contrast_head: nets.contrast_head.as_ref().map(|h| opt(&h.store, cfg.lr_quantile)).transpose()?,
             opt_alpha: AdamW::new(&log_alpha, AdamWConfig::with_lr(cfg.lr_alpha))?,
             cfg: cfg.clone(),
             nets,
@@ -186,6 +200,9 @@ impl Dsac {
         }
         if let Some(opt) = &mut self.opt_state_head {
             opts.push(("state_head", opt));
+        }
+        if let Some(opt) = &mut self.opt_contrast_head {
+            opts.push(("contrast_head", opt));
         }
         opts
     }
@@ -237,9 +254,11 @@ impl Dsac {
             z_next = smaller_mean(&z_next, &z2, &next_widths)?;
         }
         let soft = z_next.broadcast_sub(&(logp_next * alpha)?.unsqueeze(1)?)?;
+        // γⁿ: the batch's rewards are n-step returns bootstrapping from o_{t+n}.
         let not_done = (batch.done.neg()? + 1.0)?;
+        let discount = c.gamma.powi(batch.n_step as i32);
         let target = soft
-            .broadcast_mul(&(not_done * c.gamma)?.unsqueeze(1)?)?
+            .broadcast_mul(&(not_done * discount)?.unsqueeze(1)?)?
             .broadcast_add(&batch.reward.unsqueeze(1)?)?
             .detach();
 
@@ -292,6 +311,13 @@ impl Dsac {
             (None, _) => None,
         };
 
+        // Temporal contrast (self-supervised): o_t's online features against the
+        // target encoder's o_{t+n} features of the batch.
+        let contrast_loss = match &nets.contrast_head {
+            Some(head) => Some(head.info_nce(&feats.quantile, &target_features)?),
+            None => None,
+        };
+
         // Fraction proposal (quantile values detached; gradient through τ only).
         let n = fr.taus.dims()[1] - 1;
         let fixed = QuantileGrid { values: grid.values.detach(), intervals: grid.intervals };
@@ -331,19 +357,29 @@ impl Dsac {
             entropy,
             q_mean,
             state_loss: state_loss.as_ref().map(scalar).transpose()?.unwrap_or(0.0),
+            contrast_loss: contrast_loss.as_ref().map(scalar).transpose()?.unwrap_or(0.0),
             ..Default::default()
         };
-        let losses_finite =
-            [stats.critic_loss, stats.policy_loss, stats.fraction_loss, stats.alpha_loss, stats.state_loss]
-                .iter()
-                .all(|v| v.is_finite());
+        let losses_finite = [
+            stats.critic_loss,
+            stats.policy_loss,
+            stats.fraction_loss,
+            stats.alpha_loss,
+            stats.state_loss,
+            stats.contrast_loss,
+        ]
+        .iter()
+        .all(|v| v.is_finite());
         if !losses_finite {
             return Ok(self.skip(stats, "non-finite loss"));
         }
-        let critic_objective = match &state_loss {
-            Some(l) => (critic_loss + (l * c.state_aux_weight)?)?,
-            None => critic_loss,
-        };
+        let mut critic_objective = critic_loss;
+        if let Some(l) = &state_loss {
+            critic_objective = (critic_objective + (l * c.state_aux_weight)?)?;
+        }
+        if let Some(l) = &contrast_loss {
+            critic_objective = (critic_objective + (l * c.contrast_weight)?)?;
+        }
         let g_critic = critic_objective.backward()?;
         let g_fraction = fraction_loss.backward()?;
         let g_policy = policy_loss.backward()?;
@@ -359,6 +395,9 @@ impl Dsac {
             steps.push((opt, &g_critic));
         }
         if let Some(opt) = &mut self.opt_state_head {
+            steps.push((opt, &g_critic));
+        }
+        if let Some(opt) = &mut self.opt_contrast_head {
             steps.push((opt, &g_critic));
         }
         let norms =

@@ -20,4 +20,4 @@ pub use dsac::{Dsac, UpdateStats, fraction_gradient, quantile_huber_loss, smalle
 pub use error::{LearnerError, Result};
 pub use pednav_config::DsacConfig;
 pub use rate::RateLimiter;
-pub use replay::{Batch, DualReplay, Frame, FrameKind, ReplayConfig, Step, dual_split, shift_frames};
+pub use replay::{Batch, DualReplay, Frame, FrameKind, ReplayConfig, Step, dual_split, n_step_return, shift_frames};

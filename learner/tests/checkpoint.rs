@@ -131,6 +131,21 @@ fn checkpoints_round_trip_bit_exactly_and_bad_ones_change_nothing() {
     let err = load_checkpoint(&ck, &mut i).unwrap_err().to_string();
     assert!(err.contains("has no state-prediction head"), "{err}");
 
+    // So do the contrastive head and its moments.
+    let contrast_cfg = DsacConfig { contrast_weight: 0.5, ..cfg.clone() };
+    let mut k = Dsac::new(&contrast_cfg, &nets, &Device::Cpu, 4).unwrap();
+    k.update(&state_batch(16, &mut rng)).unwrap();
+    let contrast_ck = dir.join("contrast");
+    save_checkpoint(&contrast_ck, &mut k, None, serde_json::Value::Null).unwrap();
+    assert!(contrast_ck.join("contrast_head.safetensors").exists());
+    let mut l = Dsac::new(&contrast_cfg, &nets, &Device::Cpu, 5).unwrap();
+    load_checkpoint(&contrast_ck, &mut l).unwrap();
+    assert_eq!(all_values(&k), all_values(&l));
+    let batch = state_batch(16, &mut rng);
+    assert_eq!(k.update(&batch).unwrap(), l.update(&batch).unwrap());
+    let err = load_checkpoint(&contrast_ck, &mut j).unwrap_err().to_string();
+    assert!(err.contains("contrastive head") && err.contains("contrast_weight"), "{err}");
+
     // What a results folder keeps: state.json and the acting networks' files load the
     // policy into fresh networks; a damaged copy is refused and changes nothing.
     let kept = dir.join("results");

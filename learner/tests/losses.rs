@@ -218,3 +218,83 @@ fn state_prediction_loss_by_hand_and_it_shapes_the_critic_encoder() {
     let err = aux.update(&bare).unwrap_err().to_string();
     assert!(err.contains("state targets"), "{err}");
 }
+
+/// An n-step batch bootstraps with γⁿ: the same batch marked 2-step under γ = 0.9
+/// gives the update a 1-step batch gives under γ = 0.81 (same seed, same weights),
+/// and not the one under γ = 0.9.
+#[test]
+fn an_n_step_batch_discounts_its_bootstrap_by_gamma_to_the_n() {
+    let mut rng = ChaCha8Rng::seed_from_u64(12);
+    let one_step = state_batch(16, &mut rng);
+    assert_eq!(one_step.n_step, 1);
+    let two_step = pednav_learner::Batch { n_step: 2, ..one_step.clone() };
+    let (cfg, nets) = small();
+    let update = |gamma: f64, batch: &pednav_learner::Batch| {
+        let mut dsac = Dsac::new(&DsacConfig { gamma, ..cfg.clone() }, &nets, &Device::Cpu, 1).unwrap();
+        dsac.update(batch).unwrap().critic_loss
+    };
+    let (two, squared, plain) = (update(0.9, &two_step), update(0.81, &one_step), update(0.9, &one_step));
+    assert!((two - squared).abs() <= 1e-6 * squared.abs(), "γ = 0.9, n = 2: {two}; γ = 0.81, n = 1: {squared}");
+    assert!((two - plain).abs() > 1e-4 * plain.abs(), "γ² must differ from γ here: {two} vs {plain}");
+}
+
+/// ℓ_c by hand from the head's parameters and the features: the mean over rows of
+/// log Σ_j exp(s_ij) − s_ii with s_ij = cos(W a_i + b, p_j) / 0.1, a the online
+/// critic features of o_t and p the target encoder's of o_{t+n}. The loss trains the
+/// critic's encoder (not the policy), is reported apart from the critic loss, and on
+/// a fixed batch it falls.
+#[test]
+fn temporal_contrast_loss_by_hand_and_it_shapes_the_critic_encoder() {
+    let mut rng = ChaCha8Rng::seed_from_u64(9);
+    let batch = state_batch(16, &mut rng);
+    let (cfg, nets) = small();
+    let with_cfg = DsacConfig { contrast_weight: 1.0, lr_quantile: 1e-3, ..cfg.clone() };
+    let plain_cfg = DsacConfig { lr_quantile: 1e-3, ..cfg.clone() };
+    let mut with = Dsac::new(&with_cfg, &nets, &Device::Cpu, 1).unwrap();
+    let mut plain = Dsac::new(&plain_cfg, &nets, &Device::Cpu, 1).unwrap();
+    assert!(plain.nets.contrast_head.is_none());
+    let head = with.nets.contrast_head.as_ref().expect("a contrastive head with contrast_weight > 0");
+    let obs = with.nets.prepare(&batch.transitions.obs().unwrap()).unwrap();
+    let next = with.nets.prepare(&batch.transitions.next_obs().unwrap()).unwrap();
+    let anchors: Vec<Vec<f32>> = with.nets.online_features(&obs).unwrap().quantile.to_vec2().unwrap();
+    let positives: Vec<Vec<f32>> = with.nets.target_features(&next).unwrap().to_vec2().unwrap();
+    let param = |name: &str| head.store.vars().iter().find(|(n, _)| n == name).unwrap().1.as_tensor().clone();
+    let (w, b): (Vec<Vec<f32>>, Vec<f32>) =
+        (param("linear.w").to_vec2().unwrap(), param("linear.b").to_vec1().unwrap());
+    let unit = |v: Vec<f64>| -> Vec<f64> {
+        let n = v.iter().map(|x| x * x).sum::<f64>().sqrt();
+        v.into_iter().map(|x| x / n).collect()
+    };
+    let q: Vec<Vec<f64>> = anchors
+        .iter()
+        .map(|a| {
+            unit(
+                (0..b.len())
+                    .map(|d| b[d] as f64 + a.iter().zip(&w).map(|(x, row)| (x * row[d]) as f64).sum::<f64>())
+                    .collect(),
+            )
+        })
+        .collect();
+    let k: Vec<Vec<f64>> = positives.iter().map(|p| unit(p.iter().map(|&x| x as f64).collect())).collect();
+    let mut by_hand = 0.0;
+    for (i, qi) in q.iter().enumerate() {
+        let s: Vec<f64> = k.iter().map(|kj| qi.iter().zip(kj).map(|(x, y)| x * y).sum::<f64>() / 0.1).collect();
+        by_hand += s.iter().map(|v| v.exp()).sum::<f64>().ln() - s[i];
+    }
+    by_hand /= q.len() as f64;
+    let first = with.update(&batch).unwrap();
+    let plain_stats = plain.update(&batch).unwrap();
+    assert!((first.contrast_loss - by_hand).abs() < 1e-4 * by_hand.max(1.0), "{} vs {by_hand}", first.contrast_loss);
+    assert_eq!(plain_stats.contrast_loss, 0.0);
+    assert_eq!(first.critic_loss, plain_stats.critic_loss, "ℓ_c is reported apart from the critic loss");
+    let store_values = |s: &pednav_nets::ParamStore| -> Vec<Vec<f32>> {
+        s.vars().iter().map(|(_, v)| v.flatten_all().unwrap().to_vec1().unwrap()).collect()
+    };
+    assert_ne!(store_values(&with.nets.quantile.store), store_values(&plain.nets.quantile.store));
+    assert_eq!(store_values(&with.nets.policy.store), store_values(&plain.nets.policy.store));
+    let mut last = first.contrast_loss;
+    for _ in 0..60 {
+        last = with.update(&batch).unwrap().contrast_loss;
+    }
+    assert!(last < 0.8 * first.contrast_loss, "ℓ_c {} → {last}", first.contrast_loss);
+}

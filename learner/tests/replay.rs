@@ -1,11 +1,11 @@
 //! Dual replay: Algorithm 2's counts and IS ratios by hand, and reconstruction of
-//! windows against scripted episodes across episode starts, interleaved streams
-//! and ring wrap-around.
+//! windows and n-step returns against scripted episodes across episode starts,
+//! goals, interleaved streams and ring wrap-around.
 
 use std::collections::HashMap;
 
 use candle_core::Device;
-use pednav_learner::{DualReplay, Frame, FrameKind, ReplayConfig, Step, dual_split, shift_frames};
+use pednav_learner::{DualReplay, Frame, FrameKind, ReplayConfig, Step, dual_split, n_step_return, shift_frames};
 use pednav_nets::{Obs, Transitions};
 use proptest::prelude::*;
 use rand::{Rng, SeedableRng};
@@ -55,71 +55,83 @@ fn reward(stream: u64, ep: u32, t: u32) -> f32 {
     -(stream as f32) * 1000.0 - ep as f32 * 10.0 - t as f32 * 0.5
 }
 
-/// Check one sampled transition against the script: windows padded with the first
-/// frame and zero actions/rewards before the episode start.
+/// Check sampled transition `i` against the script. The transition's N_h + n frames
+/// are the times t − N_h + 1 … t + n, clamped below to the episode's first frame and
+/// above to the goal's time when the goal comes within the n steps (the frames after
+/// it repeat it); history entry j is the action and reward taken after the frame at
+/// position j, zero before the episode start and after the goal; a_t is the action
+/// at t, the reward the discounted sum of the n rewards (γ = `gamma`, cut at the goal).
 #[allow(clippy::too_many_arguments)]
 fn check_sample(
-    obs: &Obs,
-    next: &Obs,
+    t: &Transitions,
     i: usize,
+    history: usize,
     n: usize,
+    gamma: f64,
     done: f32,
     act: &[f32],
     rew: f32,
     terminal_at: &HashMap<(u8, u8), u32>,
 ) {
-    let (Obs::Pixels { frames: f0, actions: a0, rewards: r0 }, Obs::Pixels { frames: f1, actions: a1, rewards: r1 }) =
-        (obs, next)
-    else {
-        panic!("pixel observations expected")
-    };
-    let frames = |f: &candle_core::Tensor| -> Vec<(u8, u8, u32)> {
-        let v: Vec<f32> = f.get(i).unwrap().flatten_all().unwrap().to_vec1().unwrap();
+    let Transitions::Pixels { frames, actions, rewards, n_step } = t else { panic!("pixel transitions expected") };
+    assert_eq!(*n_step, n);
+    let span = history + n;
+    let window: Vec<(u8, u8, u32)> = {
+        let v: Vec<f32> = frames.get(i).unwrap().flatten_all().unwrap().to_vec1().unwrap();
         v.chunks(4).map(decode).collect()
     };
-    let (w0, w1) = (frames(f0), frames(f1));
-    let (s, e, t1) = *w1.last().unwrap();
-    assert!(t1 >= 1, "a transition ends at t ≥ 1");
-    let t = t1 - 1;
-    for (win, end) in [(&w0, t), (&w1, t1)] {
-        for (k, &(ws, we, wt)) in win.iter().enumerate() {
-            let time = end as i64 - (n - 1 - k) as i64;
-            assert_eq!((ws, we), (s, e), "window mixes episodes or streams");
-            assert_eq!(wt as i64, time.max(0), "frame at window position {k}");
-        }
+    assert_eq!(window.len(), span);
+    // o_t's newest frame names the stream, the episode and t.
+    let (s, e, t) = window[history - 1];
+    let goal = terminal_at.get(&(s, e)).copied().filter(|&g| g > t && g <= t + n as u32);
+    assert_eq!(done == 1.0, goal.is_some(), "done flag (t {t}, goal {:?})", terminal_at.get(&(s, e)));
+    let end = goal.unwrap_or(t + n as u32) as i64;
+    let time_at = |p: usize| t as i64 - (history as i64 - 1) + p as i64;
+    for (p, &(ws, we, wt)) in window.iter().enumerate() {
+        assert_eq!((ws, we), (s, e), "window mixes episodes or streams");
+        assert_eq!(wt as i64, time_at(p).clamp(0, end), "frame at position {p} (t {t}, end {end})");
     }
-    for (acts, rews, end) in [(a0, r0, t), (a1, r1, t1)] {
-        let av: Vec<f32> = acts.get(i).unwrap().flatten_all().unwrap().to_vec1().unwrap();
-        let rv: Vec<f32> = rews.get(i).unwrap().to_vec1().unwrap();
-        for k in 0..n - 1 {
-            let time = end as i64 - (n - 1 - k) as i64;
-            let (want_a, want_r) = if time < 0 {
-                ([0.0; 3], 0.0)
-            } else {
-                (action(s as u64, e as u32, time as u32), reward(s as u64, e as u32, time as u32))
-            };
-            assert_eq!(&av[k * 3..k * 3 + 3], &want_a, "action history at {k} (end {end})");
-            assert_eq!(rv[k], want_r, "reward history at {k}");
-        }
+    let av: Vec<f32> = actions.get(i).unwrap().flatten_all().unwrap().to_vec1().unwrap();
+    let rv: Vec<f32> = rewards.get(i).unwrap().to_vec1().unwrap();
+    assert_eq!((av.len(), rv.len()), (3 * (span - 1), span - 1));
+    for j in 0..span - 1 {
+        let time = time_at(j);
+        let (want_a, want_r) = if (0..end).contains(&time) {
+            (action(s as u64, e as u32, time as u32), reward(s as u64, e as u32, time as u32))
+        } else {
+            ([0.0; 3], 0.0)
+        };
+        assert_eq!(&av[j * 3..j * 3 + 3], &want_a, "action history at {j} (t {t}, end {end})");
+        assert_eq!(rv[j], want_r, "reward history at {j}");
     }
     assert_eq!(act, &action(s as u64, e as u32, t));
-    assert_eq!(rew, reward(s as u64, e as u32, t));
-    let is_terminal = terminal_at.get(&(s, e)) == Some(&t1);
-    assert_eq!(done == 1.0, is_terminal, "done flag");
+    let want: f64 = (0..n as u32)
+        .filter(|k| ((t + k) as i64) < end)
+        .map(|k| gamma.powi(k as i32) * reward(s as u64, e as u32, t + k) as f64)
+        .sum();
+    assert!((rew as f64 - want).abs() <= 1e-4 * (1.0 + want.abs()), "return {rew} vs {want} (t {t}, end {end})");
+    if n == 1 {
+        assert_eq!(rew, reward(s as u64, e as u32, t), "a one-step return is r_t exactly");
+    }
 }
 
 proptest! {
-    #![proptest_config(ProptestConfig::with_cases(32))]
+    #![proptest_config(ProptestConfig::with_cases(48))]
     #[test]
     fn sampled_windows_equal_the_scripted_histories(
         seed in 0u64..10_000,
         history in 1usize..6,
+        n_step in 1usize..4,
         capacity in 12usize..60,
         streams in 1u64..4,
     ) {
         let mut rng = ChaCha8Rng::seed_from_u64(seed);
+        let gamma = 0.5;
         let cfg = ReplayConfig { nonterminal_capacity: capacity, terminal_capacity: 5 };
-        let mut replay = DualReplay::new(&cfg, FrameKind::Pixels { size: 2 }, history, &Device::Cpu).unwrap();
+        let mut replay = DualReplay::new(&cfg, FrameKind::Pixels { size: 2 }, history, &Device::Cpu)
+            .unwrap()
+            .with_n_step(n_step, gamma, &cfg)
+            .unwrap();
         // Each stream runs episodes of random length, some ending at the goal.
         let mut state: Vec<(u32, u32, u32, bool)> = (0..streams).map(|_| (0, 0, rng.random_range(1..12), rng.random_bool(0.5))).collect();
         let mut terminal_at = HashMap::new();
@@ -152,13 +164,12 @@ proptest! {
             state[s as usize] = if last { (ep + 1, 0, rng.random_range(1..12), rng.random_bool(0.5)) } else { (ep, t + 1, len, goal) };
             if replay.nonterminal_len() + replay.terminal_len() > 0 && rng.random_bool(0.3) {
                 let Ok(batch) = replay.sample(8, &mut rng) else { continue };
+                prop_assert_eq!(batch.n_step, n_step);
                 let act: Vec<Vec<f32>> = batch.action.to_vec2().unwrap();
                 let rew: Vec<f32> = batch.reward.to_vec1().unwrap();
                 let done: Vec<f32> = batch.done.to_vec1().unwrap();
-                // o_t and o_{t+1} are views of the transitions' stored frames.
-                let (obs, next) = (batch.transitions.obs().unwrap(), batch.transitions.next_obs().unwrap());
                 for i in 0..8 {
-                    check_sample(&obs, &next, i, history, done[i], &act[i], rew[i], &terminal_at);
+                    check_sample(&batch.transitions, i, history, n_step, gamma, done[i], &act[i], rew[i], &terminal_at);
                     prop_assert_eq!(done[i] == 1.0, i < batch.n_terminal);
                     checked += 1;
                 }
@@ -166,6 +177,69 @@ proptest! {
         }
         prop_assert!(checked >= 8, "only {} samples were checked", checked);
     }
+}
+
+/// At the goal an n-step replay keeps the n transitions that reach it, cut at the
+/// goal, and an episode shorter than n keeps as many as it has steps; by hand for one
+/// 3-step episode (rewards −1, −2, −4 then the goal) and n = 2, γ = 0.5.
+#[test]
+fn the_transitions_that_reach_the_goal_are_terminal() {
+    let cfg = ReplayConfig { nonterminal_capacity: 40, terminal_capacity: 10 };
+    let mut r =
+        DualReplay::new(&cfg, FrameKind::State { dim: 1 }, 1, &Device::Cpu).unwrap().with_n_step(2, 0.5, &cfg).unwrap();
+    let rewards = [-1.0, -2.0, -4.0];
+    assert_eq!(n_step_return(&rewards, 0.5), -3.0);
+    assert_eq!(n_step_return(&[-2.5], 0.9), -2.5);
+    for t in 0..4 {
+        r.push(&Step {
+            stream: 0,
+            first: t == 0,
+            frame: Frame::State(&[t as f32]),
+            action: [t as f32; 3],
+            reward: if t == 0 { 0.0 } else { rewards[t - 1] },
+            terminal: t == 3,
+            state_target: None,
+        })
+        .unwrap();
+    }
+    // Terminal: t = 2 (k = 1: −4, goal) and t = 1 (k = 2: −2 + 0.5·(−4) = −4).
+    // Non-terminal: only t = 0 → 2 (−1 + 0.5·(−2) = −2); t = 1 → 3 is the goal's.
+    assert_eq!((r.terminal_len(), r.nonterminal_len()), (2, 2));
+    let batch = r.sample(64, &mut ChaCha8Rng::seed_from_u64(5)).unwrap();
+    let Transitions::State { obs, next } = &batch.transitions else { panic!("state batch") };
+    let (obs, next): (Vec<Vec<f32>>, Vec<Vec<f32>>) = (obs.to_vec2().unwrap(), next.to_vec2().unwrap());
+    let (rew, done): (Vec<f32>, Vec<f32>) = (batch.reward.to_vec1().unwrap(), batch.done.to_vec1().unwrap());
+    let act: Vec<Vec<f32>> = batch.action.to_vec2().unwrap();
+    let mut seen = std::collections::BTreeSet::new();
+    for i in 0..64 {
+        let (t, t_next) = (obs[i][0] as i32, next[i][0] as i32);
+        let want = match t {
+            0 => (2, -2.0, 0.0),
+            1 => (3, -4.0, 1.0),
+            2 => (3, -4.0, 1.0),
+            _ => panic!("o_t at time {t}: the goal is never o_t"),
+        };
+        assert_eq!((t_next, rew[i], done[i]), want, "sample {i} from t = {t}");
+        assert_eq!(act[i], vec![(t + 1) as f32; 3], "a_t is the action stored with step t + 1");
+        seen.insert(t);
+    }
+    assert_eq!(seen.len(), 3, "all three transitions are sampled: {seen:?}");
+    // A one-step episode keeps one terminal transition even with n = 2.
+    for t in 0..2 {
+        r.push(&Step {
+            stream: 1,
+            first: t == 0,
+            frame: Frame::State(&[10.0]),
+            action: [0.0; 3],
+            reward: -1.0,
+            terminal: t == 1,
+            state_target: None,
+        })
+        .unwrap();
+    }
+    assert_eq!(r.terminal_len(), 3);
+    // n-step is chosen before the first push.
+    assert!(r.with_n_step(3, 0.5, &cfg).is_err());
 }
 
 #[test]

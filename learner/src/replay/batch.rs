@@ -1,4 +1,4 @@
-//! A sampled batch and its assembly: each transition's N_h + 1 frames and N_h
+//! A sampled batch and its assembly: each transition's N_h + n frames and N_h + n − 1
 //! action/reward histories collected row by row, then made tensors once; and
 //! DrQ's random-shift augmentation of pixel frames.
 //!
@@ -16,16 +16,18 @@ use super::FrameKind;
 /// A sampled batch.
 #[derive(Debug, Clone)]
 pub struct Batch {
-    /// The transitions (o_t, o_{t+1}), each transition's N_h + 1 frames held once:
+    /// The transitions (o_t, o_{t+n}), each transition's N_h + n frames held once:
     /// `transitions.obs()` and `transitions.next_obs()` are views of them, and the
     /// 3D-TCN encodes both in one pass ([`pednav_nets::Encoder::encode_transition`]).
     pub transitions: Transitions,
     /// Actions a_t (B, 3).
     pub action: Tensor,
-    /// Rewards r_t (B).
+    /// The n-step returns Σ_{k<n} γᵏ r_{t+k} (B), cut at the goal; r_t when n = 1.
     pub reward: Tensor,
-    /// 1 where o_{t+1} is terminal (goal reached), else 0 (B).
+    /// 1 where the goal is reached within the n steps (no bootstrap), else 0 (B).
     pub done: Tensor,
+    /// n: the TD target bootstraps from o_{t+n} with γⁿ (1: the paper's one step).
+    pub n_step: usize,
     /// o_t's state targets (B, dim), from a replay built
     /// [`DualReplay::with_state_targets`](super::DualReplay::with_state_targets).
     pub state_target: Option<Tensor>,
@@ -50,14 +52,29 @@ pub fn shift_frames(frames: &[f32], size: usize, dx: isize, dy: isize) -> Vec<f3
     out
 }
 
+/// Σ_k γᵏ r_k over `rewards` (r_t first), summed in f64: the n-step return, exactly
+/// r_t for one reward.
+pub fn n_step_return(rewards: &[f32], gamma: f64) -> f32 {
+    let mut discount = 1.0;
+    let mut sum = 0.0f64;
+    for &r in rewards {
+        sum += discount * r as f64;
+        discount *= gamma;
+    }
+    sum as f32
+}
+
 /// Collects samples into batch tensors.
 pub(super) struct BatchBuilder {
-    n: usize,
+    /// N_h.
+    history: usize,
+    n_step: usize,
+    gamma: f64,
     fl: usize,
     b: usize,
-    /// Each transition's N_h + 1 frames.
+    /// Each transition's N_h + n frames.
     frames: Vec<f32>,
-    /// Each transition's N_h actions and rewards (the newest are a_t, r_t).
+    /// Each transition's N_h + n − 1 actions and rewards (a_t, r_t at N_h − 1).
     actions: Vec<f32>,
     rewards: Vec<f32>,
     action: Vec<f32>,
@@ -69,14 +86,17 @@ pub(super) struct BatchBuilder {
 }
 
 impl BatchBuilder {
-    pub(super) fn new(b: usize, n: usize, fl: usize) -> BatchBuilder {
+    pub(super) fn new(b: usize, history: usize, n_step: usize, gamma: f64, fl: usize) -> BatchBuilder {
+        let span = history + n_step;
         BatchBuilder {
-            n,
+            history,
+            n_step,
+            gamma,
             fl,
             b,
-            frames: Vec::with_capacity(b * (n + 1) * fl),
-            actions: Vec::with_capacity(b * n * ACTION_DIM),
-            rewards: Vec::with_capacity(b * n),
+            frames: Vec::with_capacity(b * span * fl),
+            actions: Vec::with_capacity(b * (span - 1) * ACTION_DIM),
+            rewards: Vec::with_capacity(b * (span - 1)),
             action: Vec::with_capacity(b * ACTION_DIM),
             reward: Vec::with_capacity(b),
             done: Vec::with_capacity(b),
@@ -85,33 +105,37 @@ impl BatchBuilder {
         }
     }
 
-    /// `frames`: N_h + 1 frames; `acts`/`rews`: the N_h history entries of the sequence.
+    /// `frames`: N_h + n frames; `acts`/`rews`: the N_h + n − 1 history entries of
+    /// the transition (zero after a goal within the n steps).
     pub(super) fn add(&mut self, frames: &[f32], acts: &[[f32; ACTION_DIM]], rews: &[f32], done: f32, weight: f32) {
-        let n = self.n;
-        debug_assert_eq!(frames.len(), (n + 1) * self.fl);
+        let (h, n) = (self.history, self.n_step);
+        debug_assert_eq!(frames.len(), (h + n) * self.fl);
+        debug_assert_eq!(rews.len(), h + n - 1);
         self.frames.extend_from_slice(frames);
         self.actions.extend(acts.iter().flatten());
         self.rewards.extend_from_slice(rews);
-        self.action.extend_from_slice(&acts[n - 1]);
-        self.reward.push(rews[n - 1]);
+        self.action.extend_from_slice(&acts[h - 1]);
+        self.reward.push(n_step_return(&rews[h - 1..], self.gamma));
         self.done.push(done);
         self.weight.push(weight);
     }
 
     pub(super) fn finish(self, kind: FrameKind, n_terminal: usize, target_dim: usize, dev: &Device) -> Result<Batch> {
-        let (b, n) = (self.b, self.n);
+        let (b, n_step) = (self.b, self.n_step);
+        let span = self.history + n_step;
         let transitions = match kind {
             FrameKind::Pixels { size } => Transitions::Pixels {
-                frames: Tensor::from_vec(self.frames, (b, n + 1, size, size), dev)?,
-                actions: Tensor::from_vec(self.actions, (b, n, ACTION_DIM), dev)?,
-                rewards: Tensor::from_vec(self.rewards, (b, n), dev)?,
+                frames: Tensor::from_vec(self.frames, (b, span, size, size), dev)?,
+                actions: Tensor::from_vec(self.actions, (b, span - 1, ACTION_DIM), dev)?,
+                rewards: Tensor::from_vec(self.rewards, (b, span - 1), dev)?,
+                n_step,
             },
             FrameKind::State { dim } => {
-                // History 1: each transition is o_t's vector then o_{t+1}'s.
-                let pairs = Tensor::from_vec(self.frames, (b, 2, dim), dev)?;
+                // History 1: each transition is o_t's vector, the n − 1 between, o_{t+n}'s.
+                let run = Tensor::from_vec(self.frames, (b, span, dim), dev)?;
                 Transitions::State {
-                    obs: pairs.narrow(1, 0, 1)?.reshape((b, dim))?,
-                    next: pairs.narrow(1, 1, 1)?.reshape((b, dim))?,
+                    obs: run.narrow(1, 0, 1)?.reshape((b, dim))?,
+                    next: run.narrow(1, n_step, 1)?.reshape((b, dim))?,
                 }
             }
         };
@@ -126,6 +150,7 @@ impl BatchBuilder {
                 d => Some(Tensor::from_vec(self.targets, (b, d), dev)?),
             },
             n_terminal,
+            n_step,
         })
     }
 }

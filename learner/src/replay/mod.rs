@@ -10,13 +10,25 @@
 //! rebuilt on sampling by following the links (padding with the episode's first
 //! frame and zero actions/rewards before the episode start, as the actors do).
 //! Goal-reaching (terminal) transitions are rare and must outlive the ring, so the
-//! terminal pool keeps its own copy of the N_h + 1 frames and N_h actions/rewards
-//! each one needs.
+//! terminal pool keeps its own copy of the N_h + n frames and N_h + n − 1
+//! actions/rewards each one needs.
+//!
+//! N-step transitions ([`DualReplay::with_n_step`], n = 1 by default as in the
+//! paper): a transition then spans N_h + n frames, o_t's window followed by the n
+//! newer frames up to o_{t+n}, and carries the discounted sum of its n rewards. A
+//! non-terminal sample is drawn by the step holding its *last* frame, so its n steps
+//! all exist; one whose window would start before its episode's first step is
+//! redrawn (the first n − 1 steps of every episode, which `|B_N|` still counts: the
+//! split's error is n − 1 steps per episode). At the goal the terminal pool stores
+//! the n transitions that reach it (from t = T − k, k = 1 … n, as far as the episode
+//! goes back), each cut at the goal: frames after it repeat the goal's frame and the
+//! rewards after it are 0, so the stored window has the common N_h + n layout and
+//! the return stops at the goal.
 //!
 //! Invariants: a sampled window is identical to the window the actor saw (tested
 //! against scripted episodes across episode boundaries and ring wrap-around); a
 //! transition whose window reaches an overwritten step is never sampled;
-//! `|B_N|` counts exactly the sampleable-kind steps in the ring (non-first,
+//! `|B_N|` counts exactly the steps in the ring that end a transition (non-first,
 //! non-terminal).
 //!
 //! State targets. A replay built [`DualReplay::with_state_targets`] also keeps each
@@ -50,9 +62,9 @@ const _: () = assert!(pednav_config::replay::ACTION_VALUES == ACTION_DIM);
 use crate::error::{LearnerError, Result, config_error};
 
 use batch::BatchBuilder;
-use ring::{Frames, NONE, Sequence, StepRing, write_slot};
+use ring::{Frames, NONE, Sequence, StepRing, Window, write_slot};
 
-pub use batch::{Batch, shift_frames};
+pub use batch::{Batch, n_step_return, shift_frames};
 
 /// A frame as handed to the replay.
 #[derive(Debug, Clone, Copy)]
@@ -110,8 +122,12 @@ pub struct DualReplay {
     kind: FrameKind,
     frame_len: usize,
     history: usize,
+    /// n of the n-step transitions (1: one-step, the paper).
+    n_step: usize,
+    /// γ of the n-step return.
+    gamma: f64,
     ring: StepRing,
-    /// Terminal pool: (N_h + 1) frames and N_h actions/rewards per entry.
+    /// Terminal pool: N_h + n frames and N_h + n − 1 actions/rewards per entry.
     term_frames: Frames,
     term_actions: Vec<[f32; ACTION_DIM]>,
     term_rewards: Vec<f32>,
@@ -130,11 +146,13 @@ pub struct DualReplay {
 impl DualReplay {
     /// Empty pools for frames of `kind` and observation windows of `history` frames.
     pub fn new(cfg: &ReplayConfig, kind: FrameKind, history: usize, device: &Device) -> Result<DualReplay> {
-        cfg.validate(kind, history)?;
+        cfg.validate(kind, history, 1)?;
         Ok(DualReplay {
             kind,
             frame_len: kind.values_per_frame(),
             history,
+            n_step: 1,
+            gamma: 1.0,
             ring: StepRing {
                 cap: cfg.nonterminal_capacity,
                 frames: Frames::new(kind),
@@ -172,6 +190,29 @@ impl DualReplay {
         Ok(self)
     }
 
+    /// Sample n-step transitions: o_t, a_t, the return Σ_{k<n} γᵏ r_{t+k} and o_{t+n},
+    /// cut at the goal (see the module docs). Call before the first push; n = 1 (the
+    /// default) is the one-step transition, whatever γ.
+    pub fn with_n_step(mut self, n_step: usize, gamma: f64, cfg: &ReplayConfig) -> Result<DualReplay> {
+        if self.ring.head != 0 {
+            return Err(LearnerError::Replay(
+                "n-step transitions must be chosen before the first step is stored".into(),
+            ));
+        }
+        cfg.validate(self.kind, self.history, n_step)?;
+        if !(0.0..=1.0).contains(&gamma) {
+            return Err(config_error("gamma", gamma, "must be in [0, 1]"));
+        }
+        self.n_step = n_step;
+        self.gamma = gamma;
+        Ok(self)
+    }
+
+    /// n of the transitions this replay samples (1: one-step).
+    pub fn n_step(&self) -> usize {
+        self.n_step
+    }
+
     /// Length of the state target kept with every step (0: none, the default).
     pub fn state_target_dim(&self) -> usize {
         self.target_dim
@@ -195,7 +236,7 @@ impl DualReplay {
     /// Bytes per ring step and per terminal entry of this replay (what the run's
     /// memory estimate multiplies by the pools' sizes).
     pub fn footprint(&self) -> ReplayFootprint {
-        ReplayFootprint::new(self.kind, self.history, self.target_dim)
+        ReplayFootprint::new(self.kind, self.history, self.n_step, self.target_dim)
     }
 
     /// Bytes of step and entry data held now (the vectors' lengths times their
@@ -277,7 +318,7 @@ impl DualReplay {
         if step.terminal {
             self.streams.remove(&step.stream);
             if prev != NONE {
-                self.store_terminal(g)?;
+                self.store_terminals(g);
             }
         } else {
             self.streams.insert(step.stream, g);
@@ -285,12 +326,12 @@ impl DualReplay {
         Ok(true)
     }
 
-    /// The N_h + 1 steps of the transition stored at `g`, or `None` if any is overwritten.
-    fn sequence(&self, g: u64) -> Option<Sequence> {
-        let n = self.history + 1;
-        let mut steps = vec![None; n];
+    /// The `len` steps ending at `g` (times t_g + 1 − len … t_g), `None` before the
+    /// episode start; `None` overall if any present step is overwritten.
+    fn sequence(&self, g: u64, len: usize) -> Option<Sequence> {
+        let mut steps = vec![None; len];
         let mut cur = Some(g);
-        for i in (0..n).rev() {
+        for i in (0..len).rev() {
             let c = cur?;
             if !self.ring.alive(c) {
                 return None;
@@ -306,59 +347,73 @@ impl DualReplay {
         Some(Sequence { steps })
     }
 
-    /// First present step of a sequence (the padding frame).
-    fn first_present(seq: &Sequence) -> u64 {
-        seq.steps.iter().flatten().copied().next().expect("a sequence holds at least its own step")
+    /// Frames a transition spans: N_h + n.
+    fn span(&self) -> usize {
+        self.history + self.n_step
     }
 
-    /// The N_h action/reward history entries of a sequence: entry i is the action
-    /// taken after the frame at position i (stored with the step at i + 1), zero
-    /// before the episode start.
-    fn history_of(&self, seq: &Sequence) -> (Vec<[f32; ACTION_DIM]>, Vec<f32>) {
-        let n = self.history;
-        let (mut acts, mut rews) = (Vec::with_capacity(n), Vec::with_capacity(n));
-        for i in 0..n {
-            match (seq.steps[i], seq.steps[i + 1]) {
+    /// The stored layout of a transition from its present steps `steps` (N_h + k
+    /// positions, k ≤ n, the newest last, o_t's newest at position N_h − 1, which
+    /// must be present): the ring slot of each of its N_h + n frames — the episode's
+    /// first frame before the episode start, the newest frame repeated n − k times
+    /// after it (a transition cut at the goal) — and its N_h + n − 1 history entries:
+    /// entry i is the action taken after the frame at position i (stored with the
+    /// step at i + 1), zero before the episode start and after the newest step.
+    fn window(&self, steps: &[Option<u64>]) -> Window {
+        let span = self.span();
+        debug_assert!(steps.len() <= span && steps[self.history - 1].is_some());
+        let first = steps.iter().flatten().copied().next().expect("a transition holds o_t's step");
+        let newest = steps.last().copied().flatten().expect("a transition's newest step is present");
+        let mut slots: Vec<usize> = steps.iter().map(|s| self.ring.slot(s.unwrap_or(first))).collect();
+        slots.resize(span, self.ring.slot(newest));
+        let (mut actions, mut rewards) = (Vec::with_capacity(span - 1), Vec::with_capacity(span - 1));
+        for i in 0..span - 1 {
+            match (steps.get(i).copied().flatten(), steps.get(i + 1).copied().flatten()) {
                 (Some(_), Some(next)) => {
                     let slot = self.ring.slot(next);
-                    acts.push(self.ring.action[slot]);
-                    rews.push(self.ring.reward[slot]);
+                    actions.push(self.ring.action[slot]);
+                    rewards.push(self.ring.reward[slot]);
                 }
                 _ => {
-                    acts.push([0.0; ACTION_DIM]);
-                    rews.push(0.0);
+                    actions.push([0.0; ACTION_DIM]);
+                    rewards.push(0.0);
                 }
             }
         }
-        (acts, rews)
+        let obs_step = steps[self.history - 1].expect("checked above");
+        Window { slots, actions, rewards, obs_slot: self.ring.slot(obs_step) }
     }
 
-    fn store_terminal(&mut self, g: u64) -> Result<()> {
-        let Some(seq) = self.sequence(g) else { return Ok(()) };
-        let n = self.history;
-        let e = self.term_next;
-        let pad = Self::first_present(&seq);
-        for (i, s) in seq.steps.iter().enumerate() {
-            let src = self.ring.slot(s.unwrap_or(pad));
-            self.ring.frames.copy_to(src, self.frame_len, &mut self.term_frames, e * (n + 1) + i);
+    /// Store the transitions that reach the goal at step `g`: from t = g − k for
+    /// k = 1 … n, as far as the episode and the ring go back, each cut at the goal.
+    fn store_terminals(&mut self, g: u64) {
+        let span = self.span();
+        for k in 1..=self.n_step {
+            // The N_h + k steps ending at the goal; o_t = g − k at position N_h − 1.
+            let Some(seq) = self.sequence(g, self.history + k) else { break };
+            if seq.steps[self.history - 1].is_none() {
+                break; // the episode is shorter than k steps
+            }
+            let w = self.window(&seq.steps);
+            let e = self.term_next;
+            for (i, &src) in w.slots.iter().enumerate() {
+                self.ring.frames.copy_to(src, self.frame_len, &mut self.term_frames, e * span + i);
+            }
+            if self.target_dim > 0 {
+                let d = self.target_dim;
+                let target = self.ring.targets[w.obs_slot * d..(w.obs_slot + 1) * d].to_vec();
+                write_slot(&mut self.term_targets, e, &target);
+            }
+            write_slot(&mut self.term_actions, e, &w.actions);
+            write_slot(&mut self.term_rewards, e, &w.rewards);
+            self.term_next = (e + 1) % self.term_cap;
+            self.term_len = (self.term_len + 1).min(self.term_cap);
         }
-        let (acts, rews) = self.history_of(&seq);
-        if self.target_dim > 0 {
-            let obs_step = seq.steps[n - 1].unwrap_or(pad);
-            let d = self.target_dim;
-            let src = self.ring.slot(obs_step) * d;
-            let target = self.ring.targets[src..src + d].to_vec();
-            write_slot(&mut self.term_targets, e, &target);
-        }
-        write_slot(&mut self.term_actions, e, &acts);
-        write_slot(&mut self.term_rewards, e, &rews);
-        self.term_next = (e + 1) % self.term_cap;
-        self.term_len = (self.term_len + 1).min(self.term_cap);
-        Ok(())
     }
 
-    /// Draw one sampleable non-terminal transition uniformly.
-    fn draw_nonterminal(&self, rng: &mut ChaCha8Rng) -> Result<Sequence> {
+    /// Draw one sampleable non-terminal transition uniformly (by the step holding
+    /// its newest frame; one whose o_t would precede its episode is redrawn).
+    fn draw_nonterminal(&self, rng: &mut ChaCha8Rng) -> Result<Window> {
         let r = &self.ring;
         let lo = r.head.saturating_sub(r.cap as u64);
         for _ in 0..10_000 {
@@ -366,8 +421,10 @@ impl DualReplay {
             if !r.is_transition(r.slot(g)) {
                 continue;
             }
-            if let Some(seq) = self.sequence(g) {
-                return Ok(seq);
+            if let Some(seq) = self.sequence(g, self.span())
+                && seq.steps[self.history - 1].is_some()
+            {
+                return Ok(self.window(&seq.steps));
             }
         }
         Err(LearnerError::Replay(format!("no sampleable non-terminal transition among {} stored steps", r.head - lo)))
@@ -391,40 +448,37 @@ impl DualReplay {
             return Err(LearnerError::Replay("sampling from an empty replay".into()));
         }
         let (n_t, eta_t, eta_n) = dual_split(self.term_len, self.ring.transitions, batch);
-        let n = self.history;
-        let fl = self.frame_len;
-        let mut b = BatchBuilder::new(batch, n, fl);
+        let (span, fl) = (self.span(), self.frame_len);
+        let entries = span - 1;
+        let mut b = BatchBuilder::new(batch, self.history, self.n_step, self.gamma, fl);
         let d = self.target_dim;
         for _ in 0..n_t {
             let e = rng.random_range(0..self.term_len);
-            let mut frames = Vec::with_capacity((n + 1) * fl);
-            for i in 0..=n {
-                self.term_frames.read(e * (n + 1) + i, fl, &mut frames);
+            let mut frames = Vec::with_capacity(span * fl);
+            for i in 0..span {
+                self.term_frames.read(e * span + i, fl, &mut frames);
             }
             self.augment(&mut frames, max_shift, rng);
             b.targets.extend_from_slice(self.term_targets.get(e * d..(e + 1) * d).unwrap_or_default());
             b.add(
                 &frames,
-                &self.term_actions[e * n..(e + 1) * n],
-                &self.term_rewards[e * n..(e + 1) * n],
+                &self.term_actions[e * entries..(e + 1) * entries],
+                &self.term_rewards[e * entries..(e + 1) * entries],
                 1.0,
                 eta_t as f32,
             );
         }
         for _ in n_t..batch {
-            let seq = self.draw_nonterminal(rng)?;
-            let pad = Self::first_present(&seq);
-            let mut frames = Vec::with_capacity((n + 1) * fl);
-            for s in &seq.steps {
-                self.ring.frames.read(self.ring.slot(s.unwrap_or(pad)), fl, &mut frames);
+            let w = self.draw_nonterminal(rng)?;
+            let mut frames = Vec::with_capacity(span * fl);
+            for &slot in &w.slots {
+                self.ring.frames.read(slot, fl, &mut frames);
             }
-            let (acts, rews) = self.history_of(&seq);
             self.augment(&mut frames, max_shift, rng);
             if d > 0 {
-                let src = self.ring.slot(seq.steps[n - 1].unwrap_or(pad)) * d;
-                b.targets.extend_from_slice(&self.ring.targets[src..src + d]);
+                b.targets.extend_from_slice(&self.ring.targets[w.obs_slot * d..(w.obs_slot + 1) * d]);
             }
-            b.add(&frames, &acts, &rews, 0.0, eta_n as f32);
+            b.add(&frames, &w.actions, &w.rewards, 0.0, eta_n as f32);
         }
         b.finish(self.kind, n_t, d, &self.device)
     }
@@ -465,7 +519,7 @@ mod tests {
                 r = r.with_state_targets(target_dim).unwrap();
             }
             let fp = r.footprint();
-            assert_eq!(fp, ReplayFootprint::new(kind, history, target_dim));
+            assert_eq!(fp, ReplayFootprint::new(kind, history, 1, target_dim));
             assert_eq!(r.stored_bytes(), 0);
             let pixels = vec![7u8; kind.values_per_frame()];
             let state = vec![0.5f32; kind.values_per_frame()];
@@ -503,7 +557,7 @@ mod tests {
             assert!(r.inserted() as usize > 2 * cfg.nonterminal_capacity);
         }
         // The closed form, by hand: 84×84 pixels, N_h 16, no targets.
-        let fp = ReplayFootprint::new(FrameKind::Pixels { size: 84 }, 16, 0);
+        let fp = ReplayFootprint::new(FrameKind::Pixels { size: 84 }, 16, 1, 0);
         assert_eq!(fp.ring_step, 7056 + 8 + 12 + 4 + 1);
         assert_eq!(fp.terminal_entry, 17 * 7056 + 16 * (12 + 4));
     }

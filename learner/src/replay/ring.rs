@@ -97,8 +97,18 @@ impl StepRing {
     }
 }
 
-/// A transition's N_h + 1 steps: times t+1−N_h … t+1, as ring indices or
-/// `None` before the episode start.
+/// The N_h + n steps ending at one step, as ring indices or `None` before the
+/// episode start.
 pub(super) struct Sequence {
     pub(super) steps: Vec<Option<u64>>,
+}
+
+/// A transition as stored: the ring slot of each of its N_h + n frames, its
+/// N_h + n − 1 history entries, and the slot of o_t's newest step (whose state target
+/// is the transition's).
+pub(super) struct Window {
+    pub(super) slots: Vec<usize>,
+    pub(super) actions: Vec<[f32; ACTION_DIM]>,
+    pub(super) rewards: Vec<f32>,
+    pub(super) obs_slot: usize,
 }

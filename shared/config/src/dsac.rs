@@ -61,6 +61,26 @@ pub struct DsacConfig {
     /// The state is privileged: it is a training target only and never reaches the
     /// policy's input, which stays pixels.
     pub state_aux_weight: f64,
+    /// n of the n-step TD target (1: the paper's one-step target). With n > 1 the
+    /// critic regresses on Σ_{k<n} γᵏ r_{t+k} + γⁿ (Z(s_{t+n}, a′) − α log π(a′|s_{t+n})),
+    /// cut at the goal (no bootstrap past it), as Rainbow and DrQ-v2 (n = 3) do. Value
+    /// information then travels n steps per backup instead of one; the price is a
+    /// target that mixes in up to n − 1 steps of the older, behaviour policy's actions
+    /// (no off-policy correction, as in those methods). Each sampled transition
+    /// carries N_h + n frames; the terminal pool keeps the n transitions before every
+    /// goal (so |B_T| grows n-fold, as Algorithm 2 counts done transitions).
+    pub n_step: usize,
+    /// Weight λ_c of the temporal contrastive auxiliary loss (0: off, as the paper). A
+    /// self-supervised loss that needs nothing privileged: ATC's augmented temporal
+    /// contrast (Stooke et al., 2021) on the two views the update already has — the
+    /// online critic encoder's features of o_t (the anchor) and the Polyak target
+    /// encoder's features of o_{t+n} (the positive, computed for the TD target
+    /// anyway). A linear map of the anchor and the positive are L2-normalised; the
+    /// InfoNCE loss over the batch (each anchor's positive against the batch's other
+    /// positives, temperature 0.1) is added as λ_c·ℓ_c to the critic loss, so its
+    /// gradient teaches the encoder to tell states apart — what the pixel critic's
+    /// features were measured to lack. The map steps with its own optimiser.
+    pub contrast_weight: f64,
 }
 
 impl Default for DsacConfig {
@@ -84,11 +104,17 @@ impl Default for DsacConfig {
             twin_critics: true,
             random_shift: 0,
             state_aux_weight: 0.0,
+            n_step: 1,
+            contrast_weight: 0.0,
         }
     }
 }
 
 impl DsacConfig {
+    /// The largest `n_step` accepted (each sample carries N_h + n frames; beyond a few
+    /// dozen steps γⁿ no longer bootstraps much anyway).
+    pub const MAX_N_STEP: usize = 64;
+
     /// Whether the learner builds a second critic and its target (twin critics). With
     /// [`DsacConfig::builds_state_head`], the one rule for which networks a learner
     /// has beyond the paper's three: the learner, the memory estimate and the
@@ -101,6 +127,12 @@ impl DsacConfig {
     /// state targets): only with a positive `state_aux_weight`.
     pub fn builds_state_head(&self) -> bool {
         self.state_aux_weight > 0.0
+    }
+
+    /// Whether the learner builds the contrastive head: only with a positive
+    /// `contrast_weight`.
+    pub fn builds_contrast_head(&self) -> bool {
+        self.contrast_weight > 0.0
     }
 
     /// Reject impossible values, naming the field.
@@ -153,6 +185,20 @@ impl DsacConfig {
                 "state_aux_weight",
                 self.state_aux_weight,
                 "must be finite and ≥ 0 (0: off)",
+            ));
+        }
+        if !(self.contrast_weight >= 0.0 && self.contrast_weight.is_finite()) {
+            return Err(ConfigError::learner(
+                "contrast_weight",
+                self.contrast_weight,
+                "must be finite and ≥ 0 (0: off)",
+            ));
+        }
+        if !(1..=Self::MAX_N_STEP).contains(&self.n_step) {
+            return Err(ConfigError::learner(
+                "n_step",
+                self.n_step,
+                format!("must be in 1..={} (1: the paper's one-step target)", Self::MAX_N_STEP),
             ));
         }
         if self.batch_size < 2 {

@@ -12,7 +12,7 @@ pub struct ReplayConfig {
     /// holds its frame plus 25 B ([`ReplayFootprint::ring_step`]: 7,081 B at 84×84).
     pub nonterminal_capacity: usize,
     /// |B_T| capacity: terminal transitions kept (Table IV: 1.5e6). Each entry holds
-    /// its own copy of N_h + 1 frames ([`ReplayFootprint::terminal_entry`]: 120,208 B
+    /// its own copy of N_h + n frames (n = `dsac.n_step`, 1 in the paper) ([`ReplayFootprint::terminal_entry`]: 120,208 B
     /// at 84×84, N_h 16), so the paper's capacity is ≈ 168 GiB if filled. The launcher
     /// sizes both pools at the most a run can fill — min(capacity,
     /// `runtime.max_env_steps`) ring steps, min(capacity, `runtime.max_env_steps` / 2)
@@ -28,18 +28,22 @@ impl Default for ReplayConfig {
 }
 
 impl ReplayConfig {
-    /// The rules the learner's replay (`pednav_learner::DualReplay::new`) applies,
-    /// for frames of `kind` and observation windows of `history` frames (the run config's check calls this too, so a
-    /// config the learner would refuse never starts a run).
-    pub fn validate(&self, kind: FrameKind, history: usize) -> Result<()> {
+    /// The rules the learner's replay (`pednav_learner::DualReplay`) applies, for
+    /// frames of `kind`, observation windows of `history` frames and `n_step`-step
+    /// transitions (the run config's check calls this too, so a config the learner
+    /// would refuse never starts a run).
+    pub fn validate(&self, kind: FrameKind, history: usize, n_step: usize) -> Result<()> {
         if history == 0 || (matches!(kind, FrameKind::State { .. }) && history != 1) {
             return Err(ConfigError::learner("history", history, "must be ≥ 1 (exactly 1 for state observations)"));
         }
-        if self.nonterminal_capacity < history + 2 {
+        if n_step == 0 {
+            return Err(ConfigError::learner("n_step", n_step, "must be at least 1"));
+        }
+        if self.nonterminal_capacity < history + n_step + 1 {
             return Err(ConfigError::learner(
                 "nonterminal_capacity",
                 self.nonterminal_capacity,
-                format!("must hold at least N_h + 2 = {} steps", history + 2),
+                format!("must hold at least N_h + n + 1 = {} steps", history + n_step + 1),
             ));
         }
         if self.terminal_capacity == 0 {
@@ -96,9 +100,9 @@ pub const ACTION_VALUES: usize = 3;
 ///   step of its episode (`u64`), the action that led to it (`ACTION_VALUES` × `f32`),
 ///   the reward (`f32`), the terminal flag (`bool`), and its state target
 ///   (`state_target_dim` × `f32`, 0 without the state-prediction loss).
-/// - A **terminal entry**: its own copy of the N_h + 1 frames of the transition's
-///   window (so it outlives the ring), the N_h actions and rewards of its history,
-///   and o_t's state target.
+/// - A **terminal entry**: its own copy of the N_h + n frames of the transition's
+///   window (so it outlives the ring; n = `dsac.n_step`), the N_h + n − 1 actions and
+///   rewards of its history, and o_t's state target.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct ReplayFootprint {
     /// Bytes of one slot of the non-terminal ring.
@@ -115,14 +119,16 @@ impl ReplayFootprint {
     /// Bytes of one history entry of a terminal entry: an action and a reward.
     pub const HISTORY_ENTRY: usize = ACTION_VALUES * 4 + 4;
 
-    /// The footprint of a replay of frames of `kind`, windows of `history` frames and
-    /// state targets of `state_target_dim` floats (0: none kept).
-    pub fn new(kind: FrameKind, history: usize, state_target_dim: usize) -> ReplayFootprint {
+    /// The footprint of a replay of frames of `kind`, windows of `history` frames,
+    /// `n_step`-step transitions and state targets of `state_target_dim` floats (0:
+    /// none kept).
+    pub fn new(kind: FrameKind, history: usize, n_step: usize, state_target_dim: usize) -> ReplayFootprint {
         let frame = kind.bytes_per_frame();
         let target = state_target_dim * 4;
+        let span = history + n_step;
         ReplayFootprint {
             ring_step: frame + Self::RING_STEP_EXTRA + target,
-            terminal_entry: (history + 1) * frame + history * Self::HISTORY_ENTRY + target,
+            terminal_entry: span * frame + (span - 1) * Self::HISTORY_ENTRY + target,
         }
     }
 }

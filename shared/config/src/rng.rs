@@ -19,6 +19,8 @@ pub mod stream {
     pub const TWIN_CRITIC_INIT: u64 = 4;
     /// Initial weights of the state-prediction head.
     pub const STATE_HEAD_INIT: u64 = 5;
+    /// Initial weights of the contrastive head.
+    pub const CONTRAST_HEAD_INIT: u64 = 6;
     /// The learner's replay batch sampler.
     pub const BATCH_SAMPLER: u64 = 7;
     /// The learned policy's action noise, per episode seed (actors, evaluation).
@@ -61,6 +63,7 @@ mod tests {
             stream::QUANTILE_INIT,
             stream::TWIN_CRITIC_INIT,
             stream::STATE_HEAD_INIT,
+            stream::CONTRAST_HEAD_INIT,
             stream::BATCH_SAMPLER,
             stream::ACTING_NOISE,
             stream::LEARNER_UPDATE,

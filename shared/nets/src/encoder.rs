@@ -62,27 +62,30 @@ impl Obs {
     }
 }
 
-/// A batch of transitions (o_t, o_{t+1}) with each transition's observations held
-/// once: o_t and o_{t+1} are views ([`Transitions::obs`], [`Transitions::next_obs`]),
-/// so they cannot disagree, and the 3D-TCN encodes both in one pass over the frames
-/// ([`Encoder::encode_transition`]).
+/// A batch of transitions (o_t, o_{t+n}) with each transition's observations held
+/// once: o_t and the bootstrap observation o_{t+n} are views ([`Transitions::obs`],
+/// [`Transitions::next_obs`]) of one run of N_h + n consecutive frames, so they cannot
+/// disagree, and the 3D-TCN encodes both in one pass over the frames
+/// ([`Encoder::encode_transition`]). n is 1 for the paper's one-step TD target.
 #[derive(Debug, Clone)]
 pub enum Transitions {
     /// Pixel transitions.
     Pixels {
-        /// (B, N_h + 1, H, W) in [0, 1]: o_t is the first N_h frames, o_{t+1} the last N_h.
+        /// (B, N_h + n, H, W) in [0, 1]: o_t is the first N_h frames, o_{t+n} the last N_h.
         frames: Tensor,
-        /// (B, N_h, 3): the actions between the frames; o_t's history is the first
-        /// N_h − 1, o_{t+1}'s the last N_h − 1 (the newest is a_t).
+        /// (B, N_h + n − 1, 3): the actions between the frames; o_t's history is the
+        /// first N_h − 1, o_{t+n}'s the last N_h − 1 (a_t is entry N_h − 1).
         actions: Tensor,
-        /// (B, N_h): the rewards between the frames, split like `actions`.
+        /// (B, N_h + n − 1): the rewards between the frames, split like `actions`.
         rewards: Tensor,
+        /// n ≥ 1: the steps from o_t to the bootstrap observation.
+        n_step: usize,
     },
     /// State-vector transitions.
     State {
         /// o_t (B, S).
         obs: Tensor,
-        /// o_{t+1} (B, S).
+        /// o_{t+n} (B, S).
         next: Tensor,
     },
 }
@@ -98,25 +101,26 @@ impl Transitions {
 
     /// o_t (a view, or for pixels narrowed views of the stored tensors).
     pub fn obs(&self) -> Result<Obs> {
-        self.view(0)
+        self.view(false)
     }
 
-    /// o_{t+1}.
+    /// o_{t+n}, the observation the TD target bootstraps from.
     pub fn next_obs(&self) -> Result<Obs> {
-        self.view(1)
+        self.view(true)
     }
 
-    fn view(&self, offset: usize) -> Result<Obs> {
+    fn view(&self, next: bool) -> Result<Obs> {
         Ok(match self {
-            Transitions::Pixels { frames, actions, rewards } => {
-                let n = frames.dims()[1] - 1;
+            Transitions::Pixels { frames, actions, rewards, n_step } => {
+                let h = frames.dims()[1] - n_step;
+                let offset = if next { *n_step } else { 0 };
                 Obs::Pixels {
-                    frames: frames.narrow(1, offset, n)?,
-                    actions: actions.narrow(1, offset, n - 1)?,
-                    rewards: rewards.narrow(1, offset, n - 1)?,
+                    frames: frames.narrow(1, offset, h)?,
+                    actions: actions.narrow(1, offset, h - 1)?,
+                    rewards: rewards.narrow(1, offset, h - 1)?,
                 }
             }
-            Transitions::State { obs, next } => Obs::State(if offset == 0 { obs.clone() } else { next.clone() }),
+            Transitions::State { obs, next: n } => Obs::State(if next { n.clone() } else { obs.clone() }),
         })
     }
 }
@@ -304,16 +308,16 @@ impl Encoder {
         }
     }
 
-    /// Features of o_t and o_{t+1} for a batch of transitions: (B, out_dim) each.
+    /// Features of o_t and o_{t+n} for a batch of transitions: (B, out_dim) each.
     ///
-    /// `window` (B, N_h + 1, H, W) holds o_t's frames followed by o_{t+1}'s newest
-    /// (so o_t is its first N_h frames and o_{t+1} its last N_h, as the replay builds
-    /// them). With the 3D-TCN the frame layers then run once over the window instead
-    /// of twice over N_h frames: with no temporal padding and temporal stride 1 every
-    /// layer shortens the sequence by a fixed amount, so the last layer outputs two
-    /// steps, o_t's features and o_{t+1}'s, each equal to its own [`Encoder::encode`]
-    /// (the histories are encoded per observation). Other encoders encode the two
-    /// observations separately.
+    /// A pixel transition's frames (B, N_h + n, H, W) are o_t's followed by the n
+    /// newer ones (so o_t is the first N_h frames and o_{t+n} the last N_h, as the
+    /// replay builds them). With the 3D-TCN the frame layers then run once over them
+    /// instead of twice over N_h frames: with no temporal padding and temporal stride
+    /// 1 every layer shortens the sequence by a fixed amount, so the last layer
+    /// outputs n + 1 steps, the first o_t's features and the last o_{t+n}'s, each
+    /// equal to its own [`Encoder::encode`] (the histories are encoded per
+    /// observation). Other encoders encode the two observations separately.
     pub fn encode_transition(&self, t: &Transitions) -> Result<(Tensor, Tensor)> {
         match self.encode_window(t)? {
             Some(pair) => Ok(pair),
@@ -324,18 +328,18 @@ impl Encoder {
     /// The one-pass encoding of [`Encoder::encode_transition`] where it applies (a
     /// 3D-TCN on pixel transitions), else `None`.
     pub(crate) fn encode_window(&self, t: &Transitions) -> Result<Option<(Tensor, Tensor)>> {
-        let (Encoder::Tcn(e), Transitions::Pixels { frames, .. }) = (self, t) else { return Ok(None) };
+        let (Encoder::Tcn(e), Transitions::Pixels { frames, n_step, .. }) = (self, t) else { return Ok(None) };
         let (Obs::Pixels { actions, rewards, .. }, Obs::Pixels { actions: next_actions, rewards: next_rewards, .. }) =
             (t.obs()?, t.next_obs()?)
         else {
             unreachable!("pixel transitions give pixel observations")
         };
         let b = frames.dims()[0];
-        let steps = e.encode_frames_steps(frames)?; // (B, 2, F)
+        let steps = e.encode_frames_steps(frames)?; // (B, n + 1, F): a window ending at each of t … t+n
         let frame_features = |i: usize| -> Result<Tensor> { Ok(steps.narrow(1, i, 1)?.reshape((b, ()))?) };
         Ok(Some((
             Tensor::cat(&[frame_features(0)?, e.encode_history(&actions, &rewards)?], D::Minus1)?,
-            Tensor::cat(&[frame_features(1)?, e.encode_history(&next_actions, &next_rewards)?], D::Minus1)?,
+            Tensor::cat(&[frame_features(*n_step)?, e.encode_history(&next_actions, &next_rewards)?], D::Minus1)?,
         )))
     }
 

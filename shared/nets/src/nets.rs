@@ -78,6 +78,45 @@ impl StateHead {
     }
 }
 
+/// The head of the temporal contrastive auxiliary loss (`dsac.contrast_weight`): a
+/// linear map of the online critic encoder's features of o_t, whose L2-normalised
+/// output is compared with the L2-normalised target-encoder features of o_{t+n} of
+/// every transition in the batch. Training only; acting never reads it.
+#[derive(Clone)]
+pub struct ContrastHead {
+    /// Its parameters (`contrast_head.safetensors` in checkpoints).
+    pub store: ParamStore,
+    /// anchor features → the space the positives are compared in.
+    pub layer: Dense,
+}
+
+impl ContrastHead {
+    /// Temperature of the InfoNCE logits (cosine similarities / 0.1, as SimCLR).
+    pub const TEMPERATURE: f64 = 0.1;
+
+    /// The InfoNCE loss (1/B) Σ_i [log Σ_j exp(s_ij) − s_ii] with s_ij = cos(W a_i + b,
+    /// p_j) / [`ContrastHead::TEMPERATURE`]: row i's positive is p_i, the other rows'
+    /// positives its negatives. `anchors` (B, F) carry the gradient to the encoder;
+    /// `positives` (B, F) should come detached (the Polyak target's features).
+    pub fn info_nce(&self, anchors: &Tensor, positives: &Tensor) -> Result<Tensor> {
+        let q = l2_normalise(&self.layer.forward(anchors)?)?;
+        let k = l2_normalise(positives)?;
+        let logits = (q.matmul(&k.t()?.contiguous()?)? / Self::TEMPERATURE)?; // (B, B)
+        let b = logits.dims()[0];
+        // Shift by the row maximum (detached: the loss does not depend on the shift).
+        let shifted = logits.broadcast_sub(&logits.max_keepdim(1)?.detach())?;
+        let log_sum = shifted.exp()?.sum_keepdim(1)?.log()?;
+        let own = (shifted * Tensor::eye(b, candle_core::DType::F32, logits.device())?)?.sum_keepdim(1)?;
+        Ok((log_sum - own)?.mean_all()?)
+    }
+}
+
+/// Rows of `x` (B, F) scaled to unit L2 norm (ε 1e-12 under the root).
+fn l2_normalise(x: &Tensor) -> Result<Tensor> {
+    let norm = (x.sqr()?.sum_keepdim(1)? + 1e-12)?.sqrt()?;
+    Ok(x.broadcast_div(&norm)?)
+}
+
 /// Policy, fraction-proposal, quantile and target quantile networks.
 #[derive(Clone)]
 pub struct DsacNets {
@@ -95,6 +134,8 @@ pub struct DsacNets {
     pub twin: Option<TwinCritic>,
     /// The auxiliary state-prediction head ([`DsacNets::with_state_head`]).
     pub state_head: Option<StateHead>,
+    /// The temporal contrastive head ([`DsacNets::with_contrast_head`]).
+    pub contrast_head: Option<ContrastHead>,
 }
 
 impl DsacNets {
@@ -114,7 +155,16 @@ impl DsacNets {
         let target =
             QuantileNet::new("target_quantile", cfg, true, feature_dim, device, &mut rng(stream::QUANTILE_INIT))?;
         target.store.copy_from(&quantile.store)?;
-        Ok(DsacNets { cfg: cfg.clone(), policy, fraction, quantile, target, twin: None, state_head: None })
+        Ok(DsacNets {
+            cfg: cfg.clone(),
+            policy,
+            fraction,
+            quantile,
+            target,
+            twin: None,
+            state_head: None,
+            contrast_head: None,
+        })
     }
 
     /// The networks a learner with `dsac` trains: [`DsacNets::new`], plus the second
@@ -127,6 +177,9 @@ impl DsacNets {
         }
         if dsac.builds_state_head() {
             nets = nets.with_state_head(cfg.state_dim, seed)?;
+        }
+        if dsac.builds_contrast_head() {
+            nets = nets.with_contrast_head(seed)?;
         }
         Ok(nets)
     }
@@ -157,6 +210,18 @@ impl DsacNets {
         let mut store = ParamStore::new("state_head", self.quantile.store.device());
         let layer = Dense::new(&mut store, "linear", feature_dim(&self.cfg), dim, &mut rng)?;
         self.state_head = Some(StateHead { store, layer });
+        Ok(self)
+    }
+
+    /// Add a [`ContrastHead`] on the quantile net's encoder features (from its own
+    /// stream of `seed`, so the other networks are unchanged).
+    pub fn with_contrast_head(mut self, seed: u64) -> Result<DsacNets> {
+        let mut rng = ChaCha8Rng::seed_from_u64(seed);
+        rng.set_stream(stream::CONTRAST_HEAD_INIT);
+        let mut store = ParamStore::new("contrast_head", self.quantile.store.device());
+        let f = feature_dim(&self.cfg);
+        let layer = Dense::new(&mut store, "linear", f, f, &mut rng)?;
+        self.contrast_head = Some(ContrastHead { store, layer });
         Ok(self)
     }
 
@@ -249,13 +314,16 @@ impl DsacNets {
     }
 
     /// Every parameter store, in checkpoint order (the twin critic's, then the state
-    /// head's, last).
+    /// head's, then the contrastive head's, last).
     pub fn stores(&self) -> Vec<&ParamStore> {
         let mut stores = vec![&self.policy.store, &self.fraction.store, &self.quantile.store, &self.target.store];
         if let Some(twin) = &self.twin {
             stores.extend([&twin.quantile.store, &twin.target.store]);
         }
         if let Some(head) = &self.state_head {
+            stores.push(&head.store);
+        }
+        if let Some(head) = &self.contrast_head {
             stores.push(&head.store);
         }
         stores

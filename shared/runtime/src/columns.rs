@@ -45,6 +45,8 @@ pub mod learner {
     pub const SKIPPED_UPDATES: &str = "skipped_updates";
     /// State-prediction loss (only with `dsac.state_aux_weight` > 0).
     pub const STATE_LOSS: &str = "state_loss";
+    /// Temporal contrastive loss (only with `dsac.contrast_weight` > 0).
+    pub const CONTRAST_LOSS: &str = "contrast_loss";
 }
 
 /// `metrics/episodes.csv` (written by the curriculum service, one row per episode; its

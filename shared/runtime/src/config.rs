@@ -246,8 +246,8 @@ impl RunConfig {
         // The replay's own rules (history vs observation kind, capacities), exactly as
         // the learner applies them when it builds the replay.
         self.replay
-            .validate(self.frame_kind(), self.nets.history)
-            .map_err(|e| section("replay (with nets.history)", e.to_string()))?;
+            .validate(self.frame_kind(), self.nets.history, self.dsac.n_step)
+            .map_err(|e| section("replay (with nets.history and dsac.n_step)", e.to_string()))?;
         let r = &self.runtime;
         if r.envs_per_actor == 0 || r.envs_per_actor > 4096 {
             return bad("runtime.envs_per_actor", r.envs_per_actor.to_string(), "must be 1 … 4096");
@@ -456,6 +456,9 @@ mod tests {
             ("dsac.max_grad_norm=inf", "max_grad_norm"),
             ("dsac.train_interval=0", "train_interval"),
             ("dsac.rate_slack=0", "rate_slack"),
+            ("dsac.n_step=0", "n_step"),
+            ("dsac.n_step=1000", "n_step"),
+            ("dsac.contrast_weight=nan", "contrast_weight"),
             ("nets.hidden=1000000", "hidden"),
             ("nets.quantiles=100000", "quantiles"),
             ("nets.quantile_grid=100000", "quantile_grid"),

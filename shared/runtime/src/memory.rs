@@ -15,9 +15,11 @@
 //!
 //! - the non-terminal ring holds one slot per stored step: at most
 //!   `min(replay.nonterminal_capacity, runtime.max_env_steps)`;
-//! - the terminal pool holds one entry per goal-reaching episode of at least two
-//!   steps (a first step is never a stored transition), so at most
-//!   `min(replay.terminal_capacity, runtime.max_env_steps / 2)`.
+//! - the terminal pool holds, per goal-reaching episode, one entry for each of the
+//!   last min(n, L − 1) transitions of its L steps (n = `dsac.n_step`, 1 in the
+//!   paper; a first step is never a stored transition), so at most n entries per
+//!   n + 1 steps: `min(replay.terminal_capacity, runtime.max_env_steps · n / (n + 1))`
+//!   (`max_env_steps / 2` for the paper's one-step transitions).
 //!
 //! (`runtime.max_env_steps` counts the steps the learner received over the whole run,
 //! resumes included, and a resumed learner starts with an empty replay, so the bound
@@ -70,9 +72,10 @@ pub const PROCESSES_BASE_BYTES: u64 = 128 << 20;
 /// kept for the backward pass, their gradients, the batch itself), as two terms:
 ///
 /// - encoders: `B × side² × 4 B` per encoder network (online, twin and target
-///   encoders each count one) times a factor of the encoder kind — the 3D-TCN's
-///   activations grow with the window (10 × (N_h + 1)), frame stacking's mostly do
-///   not (16 + (N_h + 1) / 2: its first convolution folds the frames into channels);
+///   encoders each count one) times a factor of the encoder kind and the window w =
+///   N_h + n frames a sampled transition spans (n = `dsac.n_step`) — the 3D-TCN's
+///   activations grow with it (10 × w), frame stacking's mostly do not (16 + w / 2:
+///   its first convolution folds the frames into channels);
 ///   the MLP's are in the heads' term;
 /// - heads: `B × quantiles × hidden × 4 B` per quantile network (online, target,
 ///   twin) times [`HEAD_FACTOR`].
@@ -208,6 +211,13 @@ fn meminfo_field(name: &str) -> Option<u64> {
     Some(kb * 1024)
 }
 
+/// The most terminal entries `steps` env steps can create with `n_step`-step
+/// transitions: n per goal-reaching episode of at least n + 1 steps (see the module
+/// docs), so `steps · n / (n + 1)`.
+fn terminal_fill(steps: u64, n_step: usize) -> u64 {
+    (steps as u128 * n_step as u128 / (n_step as u128 + 1)) as u64
+}
+
 fn usable(machine: u64) -> u128 {
     (machine as f64 * USABLE_SHARE) as u128
 }
@@ -222,13 +232,16 @@ impl RunConfig {
     /// The memory this run needs under `plan`, component by component (see the
     /// module docs for the pools' rule and the measured constants).
     pub fn memory_estimate(&self, plan: &MemoryPlan) -> Result<MemoryEstimate> {
-        let fp = ReplayFootprint::new(self.frame_kind(), self.nets.history, self.replay_state_target_dim());
+        let n = self.dsac.n_step;
+        let fp = ReplayFootprint::new(self.frame_kind(), self.nets.history, n, self.replay_state_target_dim());
         let max_steps = self.runtime.max_env_steps;
         let bound = |capacity: usize, by_steps: u64| -> u128 {
             if max_steps > 0 { (capacity as u128).min(by_steps as u128) } else { capacity as u128 }
         };
-        let (ring_n, term_n) =
-            (bound(self.replay.nonterminal_capacity, max_steps), bound(self.replay.terminal_capacity, max_steps / 2));
+        let (ring_n, term_n) = (
+            bound(self.replay.nonterminal_capacity, max_steps),
+            bound(self.replay.terminal_capacity, terminal_fill(max_steps, n)),
+        );
         let limited = |n: u128, cap: usize, what: &str| {
             if n < cap as u128 {
                 format!(" (bounded by runtime.max_env_steps = {max_steps}{what})")
@@ -240,7 +253,7 @@ impl RunConfig {
             format!(
                 "replay pools at the most a run can fill: min(capacity, runtime.max_env_steps = {max_steps}) steps, \
                  min(capacity, {}) terminal entries",
-                max_steps / 2
+                terminal_fill(max_steps, n)
             )
         } else {
             "replay pools at their capacities: runtime.max_env_steps = 0 sets no bound on what a run can fill"
@@ -264,15 +277,19 @@ impl RunConfig {
                 part: Part::TerminalPool,
                 what: "replay, terminal pool",
                 how: format!(
-                    "{} entries × {} B (each copies its N_h + 1 = {} frames)",
+                    "{} entries × {} B (each copies its N_h + n = {} frames)",
                     group(term_n),
                     group(fp.terminal_entry as u128),
-                    self.nets.history + 1
+                    self.nets.history + n
                 ),
                 fields: format!(
                     "replay.terminal_capacity = {}{}",
                     self.replay.terminal_capacity,
-                    limited(term_n, self.replay.terminal_capacity, " / 2")
+                    limited(
+                        term_n,
+                        self.replay.terminal_capacity,
+                        &if n == 1 { " / 2".to_string() } else { format!(" · {n} / {}", n + 1) }
+                    )
                 ),
                 bytes: term_n * fp.terminal_entry as u128,
                 on_host: true,
@@ -332,7 +349,7 @@ impl RunConfig {
         .filter(|&e| e)
         .count();
         let critics = 2 + 2 * usize::from(nets.twin.is_some());
-        let window = self.nets.history + 1;
+        let window = self.nets.history + self.dsac.n_step; // the frames a sampled transition spans
         let b = self.dsac.batch_size as f64;
         let side2 = (self.nets.image_size * self.nets.image_size) as f64;
         let enc_factor = encoder_factor(self.nets.encoder, window);
@@ -460,7 +477,8 @@ impl MemoryEstimate {
         // Or bound the run: the largest runtime.max_env_steps whose pools fit.
         let budget = limit.saturating_sub(total - ring.bytes - term.bytes);
         let (cr, ct) = (cfg.replay.nonterminal_capacity as u128, cfg.replay.terminal_capacity as u128);
-        let fill = |m: u128| cr.min(m) * ring.per_item + ct.min(m / 2) * term.per_item;
+        let n = cfg.dsac.n_step;
+        let fill = |m: u128| cr.min(m) * ring.per_item + ct.min(terminal_fill(m as u64, n) as u128) * term.per_item;
         let (mut lo, mut hi) = (0u128, 2 * cr.max(ct) + 2);
         while lo < hi {
             let mid = (lo + hi).div_ceil(2);
@@ -576,9 +594,9 @@ mod tests {
 
     /// The replay's part of the estimate is the footprint of the replay's storage,
     /// written out here by hand: slots × (frame + u64 link + 3 f32 action + f32
-    /// reward + bool flag + state target) and entries × ((N_h + 1) frames + N_h ×
-    /// (action + reward) + state target), pools bounded by min(capacity,
-    /// max_env_steps) and min(capacity, max_env_steps / 2).
+    /// reward + bool flag + state target) and entries × ((N_h + n) frames + (N_h + n − 1)
+    /// × (action + reward) + state target), pools bounded by min(capacity,
+    /// max_env_steps) and min(capacity, max_env_steps · n / (n + 1)).
     #[test]
     fn the_replay_estimate_is_its_per_entry_sizes_in_closed_form() {
         // smoke: 42×42 pixels, N_h 4, capacities 20,000 and 2,000, no bound, no targets.
@@ -594,6 +612,15 @@ mod tests {
         let target = 22 * 4;
         assert_eq!(est.item(Part::Ring).bytes, 3_000 * (frame + 25 + target));
         assert_eq!(est.item(Part::TerminalPool).bytes, 1_500 * ((n + 1) * frame + n * 16 + target));
+        // 3-step transitions: each entry copies N_h + 3 frames and N_h + 2 history
+        // entries, and 3 of every 4 steps can be terminal entries.
+        let cfg = smoke_with(&["runtime.max_env_steps=3000", "dsac.n_step=3"]);
+        let est = cfg.memory_estimate(&MemoryPlan::of(&cfg, 1)).unwrap();
+        assert_eq!(est.item(Part::Ring).bytes, 3_000 * (frame + 25));
+        assert_eq!(est.item(Part::TerminalPool).bytes, 2_000 * ((n + 3) * frame + (n + 2) * 16));
+        let cfg = smoke_with(&["runtime.max_env_steps=2000", "dsac.n_step=3"]);
+        let est = cfg.memory_estimate(&MemoryPlan::of(&cfg, 1)).unwrap();
+        assert_eq!(est.item(Part::TerminalPool).bytes, 1_500 * ((n + 3) * frame + (n + 2) * 16));
         // State observations: 22 f32 per frame, history 1.
         let cfg = RunConfig::load(&configs().join("cpu_state.toml")).unwrap();
         let est = cfg.memory_estimate(&MemoryPlan::of(&cfg, 2)).unwrap();

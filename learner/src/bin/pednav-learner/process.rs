@@ -157,6 +157,7 @@ impl Interval {
             (&mut sum.entropy, s.entropy),
             (&mut sum.q_mean, s.q_mean),
             (&mut sum.state_loss, s.state_loss),
+            (&mut sum.contrast_loss, s.contrast_loss),
         ] {
             *acc += v;
         }
@@ -232,7 +233,11 @@ impl LearnerProcess {
             );
         }
         let kind = cfg.frame_kind();
-        let mut replay = DualReplay::new(&cfg.replay, kind, cfg.nets.history, device)?;
+        let mut replay = DualReplay::new(&cfg.replay, kind, cfg.nets.history, device)?.with_n_step(
+            cfg.dsac.n_step,
+            cfg.dsac.gamma,
+            &cfg.replay,
+        )?;
         if cfg.dsac.builds_state_head() {
             replay = replay.with_state_targets(cfg.nets.state_dim)?;
         }
@@ -493,6 +498,9 @@ impl LearnerProcess {
         ];
         if self.cfg.dsac.builds_state_head() {
             row.push((col::STATE_LOSS, iv.mean(s.state_loss)));
+        }
+        if self.cfg.dsac.builds_contrast_head() {
+            row.push((col::CONTRAST_LOSS, iv.mean(s.contrast_loss)));
         }
         self.metrics.log_optional(self.received_total, &row)?;
         self.health.metrics(&self.metrics);

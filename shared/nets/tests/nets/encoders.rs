@@ -91,19 +91,27 @@ fn every_encoder_kind_runs_forward_and_backward() {
     }
 }
 
-/// One pass over a transition's N_h + 1 frames gives the same features as encoding
-/// o_t and o_{t+1} separately (separate and shared encoders, several N_h).
+/// One pass over a transition's N_h + n frames gives the same features as encoding
+/// o_t and o_{t+n} separately (separate and shared encoders, several N_h, one-step
+/// and n-step transitions).
 #[test]
 fn transition_features_equal_separate_encoding() {
     let mut rng = ChaCha8Rng::seed_from_u64(11);
-    for (history, shared) in [(4, false), (8, true), (16, false), (7, true)] {
+    for (history, shared, n) in [(4, false, 1), (8, true, 1), (16, false, 1), (7, true, 1), (8, true, 3), (4, false, 2)]
+    {
         let cfg = NetsConfig { history, ..tiny(EncoderKind::Tcn, shared) };
         let nets = DsacNets::new(&cfg, &Device::Cpu, 2).unwrap();
         let (b, s) = (3, cfg.image_size);
-        let window = random(&mut rng, &[b, history + 1, s, s], 1.0).abs().unwrap();
-        let (actions, rewards) = (random(&mut rng, &[b, history, 3], 1.0), random(&mut rng, &[b, history], 1.0));
-        let t = Transitions::Pixels { frames: window.clone(), actions: actions.clone(), rewards: rewards.clone() };
-        // o_t and o_{t+1} are the stored tensors' overlapping views, made contiguous
+        let window = random(&mut rng, &[b, history + n, s, s], 1.0).abs().unwrap();
+        let (actions, rewards) =
+            (random(&mut rng, &[b, history + n - 1, 3], 1.0), random(&mut rng, &[b, history + n - 1], 1.0));
+        let t = Transitions::Pixels {
+            frames: window.clone(),
+            actions: actions.clone(),
+            rewards: rewards.clone(),
+            n_step: n,
+        };
+        // o_t and o_{t+n} are the stored tensors' overlapping views, made contiguous
         // here so the reference encodes plain tensors.
         let part = |x: &Tensor, start: usize, len: usize| x.narrow(1, start, len).unwrap().contiguous().unwrap();
         let obs = Obs::Pixels {
@@ -112,9 +120,9 @@ fn transition_features_equal_separate_encoding() {
             rewards: part(&rewards, 0, history - 1),
         };
         let next = Obs::Pixels {
-            frames: part(&window, 1, history),
-            actions: part(&actions, 1, history - 1),
-            rewards: part(&rewards, 1, history - 1),
+            frames: part(&window, n, history),
+            actions: part(&actions, n, history - 1),
+            rewards: part(&rewards, n, history - 1),
         };
         let (Obs::Pixels { frames: f0, actions: a0, .. }, Obs::Pixels { frames: f1, rewards: r1, .. }) =
             (t.obs().unwrap(), t.next_obs().unwrap())
