@@ -130,7 +130,7 @@ proptest! {
         let cfg = ReplayConfig { nonterminal_capacity: capacity, terminal_capacity: 5 };
         let mut replay = DualReplay::new(&cfg, FrameKind::Pixels { size: 2 }, history, &Device::Cpu)
             .unwrap()
-            .with_n_step(n_step, gamma, &cfg)
+            .with_n_step(n_step, gamma)
             .unwrap();
         // Each stream runs episodes of random length, some ending at the goal.
         let mut state: Vec<(u32, u32, u32, bool)> = (0..streams).map(|_| (0, 0, rng.random_range(1..12), rng.random_bool(0.5))).collect();
@@ -186,7 +186,7 @@ proptest! {
 fn the_transitions_that_reach_the_goal_are_terminal() {
     let cfg = ReplayConfig { nonterminal_capacity: 40, terminal_capacity: 10 };
     let mut r =
-        DualReplay::new(&cfg, FrameKind::State { dim: 1 }, 1, &Device::Cpu).unwrap().with_n_step(2, 0.5, &cfg).unwrap();
+        DualReplay::new(&cfg, FrameKind::State { dim: 1 }, 1, &Device::Cpu).unwrap().with_n_step(2, 0.5).unwrap();
     let rewards = [-1.0, -2.0, -4.0];
     assert_eq!(n_step_return(&rewards, 0.5), -3.0);
     assert_eq!(n_step_return(&[-2.5], 0.9), -2.5);
@@ -239,7 +239,7 @@ fn the_transitions_that_reach_the_goal_are_terminal() {
     }
     assert_eq!(r.terminal_len(), 3);
     // n-step is chosen before the first push.
-    assert!(r.with_n_step(3, 0.5, &cfg).is_err());
+    assert!(r.with_n_step(3, 0.5).is_err());
 }
 
 #[test]

@@ -193,12 +193,14 @@ impl DualReplay {
     /// Sample n-step transitions: o_t, a_t, the return Σ_{k<n} γᵏ r_{t+k} and o_{t+n},
     /// cut at the goal (see the module docs). Call before the first push; n = 1 (the
     /// default) is the one-step transition, whatever γ.
-    pub fn with_n_step(mut self, n_step: usize, gamma: f64, cfg: &ReplayConfig) -> Result<DualReplay> {
+    pub fn with_n_step(mut self, n_step: usize, gamma: f64) -> Result<DualReplay> {
         if self.ring.head != 0 {
             return Err(LearnerError::Replay(
                 "n-step transitions must be chosen before the first step is stored".into(),
             ));
         }
+        // The pools' own capacities, checked by the one rule `pednav-run check` applies.
+        let cfg = ReplayConfig { nonterminal_capacity: self.ring.cap, terminal_capacity: self.term_cap };
         cfg.validate(self.kind, self.history, n_step)?;
         if !(0.0..=1.0).contains(&gamma) {
             return Err(config_error("gamma", gamma, "must be in [0, 1]"));

@@ -233,11 +233,8 @@ impl LearnerProcess {
             );
         }
         let kind = cfg.frame_kind();
-        let mut replay = DualReplay::new(&cfg.replay, kind, cfg.nets.history, device)?.with_n_step(
-            cfg.dsac.n_step,
-            cfg.dsac.gamma,
-            &cfg.replay,
-        )?;
+        let mut replay = DualReplay::new(&cfg.replay, kind, cfg.nets.history, device)?
+            .with_n_step(cfg.dsac.n_step, cfg.dsac.gamma)?;
         if cfg.dsac.builds_state_head() {
             replay = replay.with_state_targets(cfg.nets.state_dim)?;
         }
