@@ -16,11 +16,11 @@ use anyhow::{Context, Result, bail};
 use candle_core::Device;
 use pednav_nets::DsacNets;
 use pednav_policy::{ActingPolicy, Sampling};
-use pednav_runtime::channels::{EpisodeReporter, Observation, StepWriter, TaskRequester};
+use pednav_runtime::channels::{EpisodeReporter, StepPayload, StepWriter, TaskRequester};
 use pednav_runtime::columns::actor as col;
 use pednav_runtime::ipc::HeartbeatPublisher;
-use pednav_runtime::messages::{EpisodeHeader, EpisodePoint, Faults, Heartbeat, StepHeader, process_kind, step_flags};
-use pednav_runtime::stats::{self, ActorStats};
+use pednav_runtime::messages::{EpisodeHeader, EpisodePoint, Faults, Heartbeat, ProcessKind, StepFlags, StepHeader};
+use pednav_runtime::stats::{self, ActorStats, ProcessStatus};
 use pednav_runtime::weights::WeightsClient;
 use pednav_runtime::write_health::WriteHealth;
 use pednav_runtime::{ActorPolicy, Ipc, Metrics, RunConfig, RunDir, StopFlag, run_prefix};
@@ -189,7 +189,7 @@ impl ActorProcess {
     pub fn run(mut self) -> Result<()> {
         tracing::info!(actor = self.actor, incarnation = self.incarnation, envs = self.envs.num_envs(), policy = ?self.cfg.runtime.policy, "actor waiting for the learner and the curriculum service");
         if !self.steps.wait_for_learner(Duration::from_secs(3600)) {
-            return self.finish("stopped before the learner came up");
+            return self.finish(ProcessStatus::StoppedBeforeLearner);
         }
         self.timing = Timing::new(0);
         while !self.stop.is_set() {
@@ -197,7 +197,7 @@ impl ActorProcess {
                 break;
             }
         }
-        let status = if self.stop.is_set() { "stopped" } else { "ended" };
+        let status = if self.stop.is_set() { ProcessStatus::Stopped } else { ProcessStatus::Ended };
         self.finish(status)
     }
 
@@ -257,7 +257,7 @@ impl ActorProcess {
                 actor: self.actor,
                 env: e as u32,
                 incarnation: self.incarnation,
-                flags: step_flags::FIRST,
+                flags: StepFlags::FIRST,
                 episode: ep.id,
                 policy_version: self.weights.version(),
                 seq: self.counters.steps,
@@ -305,16 +305,10 @@ impl ActorProcess {
         for (e, t) in transitions.iter().enumerate() {
             let ep = self.episodes[e].as_mut().expect("every env is in an episode");
             ep.step = t.step;
-            let mut flags = 0;
-            if t.terminated {
-                flags |= step_flags::TERMINAL;
-            }
-            if t.truncated {
-                flags |= step_flags::TRUNCATED;
-            }
-            if t.collided {
-                flags |= step_flags::COLLIDED;
-            }
+            let flags = StepFlags::NONE
+                .with_if(StepFlags::TERMINAL, t.terminated)
+                .with_if(StepFlags::TRUNCATED, t.truncated)
+                .with_if(StepFlags::COLLIDED, t.collided);
             let header = StepHeader {
                 actor: self.actor,
                 env: e as u32,
@@ -396,7 +390,7 @@ impl ActorProcess {
         )?;
         self.health.metrics(&self.metrics);
         let _ = self.heartbeat.send_copy(Heartbeat {
-            kind: process_kind::ACTOR,
+            kind: ProcessKind::ACTOR,
             id: self.actor,
             pid: std::process::id(),
             env_steps: c.steps,
@@ -407,7 +401,7 @@ impl ActorProcess {
             faults: self.health.faults(),
             ..Heartbeat::default()
         });
-        match self.dir.write_stats(&stats::actor_live(self.actor), &self.stats(stats::RUNNING)) {
+        match self.dir.write_stats(&stats::actor_live(self.actor), &self.stats(ProcessStatus::Running)) {
             Ok(()) => self.health.succeeded("stats"),
             Err(e) => self.health.failed(
                 "stats",
@@ -420,13 +414,13 @@ impl ActorProcess {
         Ok(())
     }
 
-    fn stats(&self, status: &str) -> ActorStats {
+    fn stats(&self, status: ProcessStatus) -> ActorStats {
         let (c, versions) = (&self.counters, &self.versions_used);
         ActorStats {
             actor: self.actor,
             incarnation: self.incarnation,
             pid: std::process::id(),
-            status: status.to_string(),
+            status,
             steps_sent: c.steps,
             checksum: c.checksum,
             episodes: c.episodes,
@@ -438,9 +432,14 @@ impl ActorProcess {
         }
     }
 
-    fn finish(&self, status: &str) -> Result<()> {
+    fn finish(&self, status: ProcessStatus) -> Result<()> {
         self.dir.write_stats(&stats::actor_final(self.actor, self.incarnation), &self.stats(status))?;
-        tracing::info!(steps = self.counters.steps, episodes = self.counters.episodes, status, "actor finished");
+        tracing::info!(
+            steps = self.counters.steps,
+            episodes = self.counters.episodes,
+            status = status.as_str(),
+            "actor finished"
+        );
         Ok(())
     }
 }
@@ -458,9 +457,9 @@ fn observation<'a>(
     frames: Option<&'a pednav_sim::Frames<'a>>,
     states: &'a [[f32; STATE_OBS_DIM]],
     e: usize,
-) -> Observation<'a> {
+) -> StepPayload<'a> {
     match frames {
-        Some(frames) => Observation::Frame { frames, env: e },
-        None => Observation::State(&states[e]),
+        Some(frames) => StepPayload::Frame { frames, env: e },
+        None => StepPayload::State(&states[e]),
     }
 }

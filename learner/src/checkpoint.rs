@@ -23,7 +23,7 @@ use std::fs;
 use std::path::{Path, PathBuf};
 
 use candle_core::{Device, Tensor};
-use pednav_nets::{DsacNets, NetsConfig, ParamStore};
+use pednav_nets::{DsacNets, NetParts, NetsConfig, ParamStore};
 use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
 
@@ -200,12 +200,13 @@ fn write_generation(
         }
     }
     write_tensors(OPTIM_FILE.to_string(), &moments, steps)?;
+    let parts = dsac.nets.parts();
     let meta = CheckpointMeta {
         format: FORMAT,
         nets: dsac.nets.cfg.clone(),
-        twin_critics: dsac.nets.twin.is_some(),
-        state_head: dsac.nets.state_head.is_some(),
-        contrast_head: dsac.nets.contrast_head.is_some(),
+        twin_critics: parts.twin_critic,
+        state_head: parts.state_head,
+        contrast_head: parts.contrast_head,
         updates: dsac.updates,
         skipped: dsac.skipped,
         optimizer_steps,
@@ -390,10 +391,9 @@ pub struct TrainedAgent {
 /// only [`acting_files`]) is refused naming the missing file.
 pub fn load_agent(dir: &Path, device: &Device) -> Result<TrainedAgent> {
     let meta = read_meta(dir)?;
-    let mut nets = DsacNets::new(&meta.nets, device, 0)?;
-    if meta.twin_critics {
-        nets = nets.with_twin_critic(0)?;
-    }
+    // Q(s, a) needs the critics only: the auxiliary heads stay on disk.
+    let parts = NetParts { twin_critic: meta.twin_critics, ..NetParts::default() };
+    let nets = DsacNets::with_parts(&meta.nets, parts, device, 0)?;
     let mut log_alpha = ParamStore::new(LOG_ALPHA, device);
     log_alpha.insert(LOG_ALPHA, Tensor::zeros(1, candle_core::DType::F32, device)?)?;
     // The online networks only: the Polyak targets play no part in acting or in Q(s, a).
@@ -430,15 +430,15 @@ pub fn load_checkpoint(dir: &Path, dsac: &mut Dsac) -> Result<CheckpointMeta> {
             format!("it was written for networks {:?}, the learner is configured with {:?}", meta.nets, dsac.nets.cfg),
         ));
     }
-    let twin = dsac.nets.twin.is_some();
-    if meta.twin_critics != twin {
+    let parts = dsac.nets.parts();
+    if meta.twin_critics != parts.twin_critic {
         let (has, wants) = if meta.twin_critics { ("has a", "without") } else { ("has no", "with") };
         return Err(ck_err(
             dir,
             format!("it {has} twin critic and the learner is configured {wants} one (`dsac.twin_critics`)"),
         ));
     }
-    if meta.state_head != dsac.nets.state_head.is_some() {
+    if meta.state_head != parts.state_head {
         let (has, wants) = if meta.state_head { ("has a", "0") } else { ("has no", "> 0") };
         return Err(ck_err(
             dir,
@@ -448,7 +448,7 @@ pub fn load_checkpoint(dir: &Path, dsac: &mut Dsac) -> Result<CheckpointMeta> {
             ),
         ));
     }
-    if meta.contrast_head != dsac.nets.contrast_head.is_some() {
+    if meta.contrast_head != parts.contrast_head {
         let (has, wants) = if meta.contrast_head { ("has a", "0") } else { ("has no", "> 0") };
         return Err(ck_err(
             dir,

@@ -8,6 +8,7 @@ use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
 use std::time::Duration;
 
+use pednav_runtime::stats::ProcessStatus;
 use pednav_tests::run::{bin_dir, learner, run_local, stop, wait_for, wait_within};
 use pednav_tests::{scratch_dir, workspace_root};
 
@@ -32,6 +33,14 @@ impl Drop for Tmpfs {
     fn drop(&mut self) {
         let _ = Command::new("umount").arg("-l").arg(&self.0).status();
     }
+}
+
+/// The update count of the checkpoint generation in `dir` (its state file's `updates`);
+/// `None` while a save swaps the generations.
+fn saved_updates(dir: &Path) -> Option<u64> {
+    let text = std::fs::read_to_string(dir.join("state.json")).ok()?;
+    let state: serde_json::Value = serde_json::from_str(&text).ok()?;
+    state["updates"].as_u64()
 }
 
 /// Bytes used by the files under `dir`.
@@ -96,14 +105,33 @@ fn a_full_disk_stops_the_checkpoints_not_the_training_and_freeing_space_resumes_
     });
     assert!(!run_dir.join("restarts.jsonl").exists(), "nothing was restarted: a full disk is no reason to");
 
-    // Space freed: the next checkpoint reaches the disk.
+    // The last good generation is what a restart loads: SIGKILL the learner while the
+    // disk is still full; its replacement resumes from the checkpoint on disk (the
+    // update count its state file names) and trains on.
+    // Not in the middle of a failing save: its partial generation would hold the space
+    // the replacement's stats need until its own first save clears it.
+    let tmp = run_dir.join("checkpoints/learner.tmp");
+    wait_for(&run_dir, "no save in progress", || (!tmp.exists()).then_some(()));
+    let on_disk = saved_updates(&ck).expect("the last good checkpoint is on disk");
+    let killed = learner(&run_dir).unwrap().pid as i32;
+    // SAFETY: the pid is the learner process our run started.
+    unsafe { libc::kill(killed, libc::SIGKILL) };
+    // The replacement saves every 50 updates (smoke.toml) after the one it resumed from:
+    // past 60 it has met the full disk itself.
+    wait_for(&run_dir, "the replacement learner resuming from the last good checkpoint and updating", || {
+        let l = learner(&run_dir)?;
+        (l.pid as i32 != killed && l.resumed_from_update? == on_disk && l.updates > on_disk + 60).then_some(())
+    });
+
+    // Space freed: the next checkpoint reaches the disk, and the learner says so.
     std::fs::remove_file(&filler).unwrap();
-    wait_for(&run_dir, "a checkpoint written again", || {
-        log_of(&run_dir, "learner").contains("checkpoint written again").then_some(())
+    wait_for(&run_dir, "a checkpoint newer than the last good one on disk, and the learner saying so", || {
+        (saved_updates(&ck)? > on_disk && log_of(&run_dir, "learner").contains("checkpoint written again"))
+            .then_some(())
     });
     stop(&mut run, &run_dir);
     let last = learner(&run_dir).unwrap();
-    assert_eq!(last.status, "stopped");
+    assert_eq!(last.status, ProcessStatus::Stopped);
     let state = std::fs::read_to_string(ck.join("state.json")).unwrap();
     assert!(state.contains(&format!("\"updates\": {}", last.updates)), "the final checkpoint holds the last update");
 }

@@ -17,6 +17,8 @@ use std::path::{Path, PathBuf};
 use std::process::{Child, Command};
 use std::time::Duration;
 
+use pednav_runtime::columns;
+use pednav_runtime::stats::ProcessStatus;
 use pednav_tests::run::{actor, bin_dir, curriculum, learner, pid_of, run_local, stop, wait_for, wait_within};
 use pednav_tests::{scratch_dir, workspace_root};
 
@@ -51,7 +53,7 @@ fn actor_learner_curriculum_run_restart_and_resume() {
     // Every step of the replacement actor reached the learner, bit for bit.
     let replacement = actor(&run_dir, "actor-0.2").expect("the replacement actor wrote its final stats");
     let final_learner = learner(&run_dir).unwrap();
-    assert_eq!(final_learner.status, "stopped");
+    assert_eq!(final_learner.status, ProcessStatus::Stopped);
     let tally = final_learner
         .streams
         .iter()
@@ -70,6 +72,15 @@ fn actor_learner_curriculum_run_restart_and_resume() {
     assert!(replacement.tasks_received >= 2, "{replacement:?}");
     assert!(replacement.last_task_id <= first_curriculum.tasks_issued);
     assert!(first_curriculum.episodes >= replacement.episodes, "{first_curriculum:?} vs {replacement:?}");
+    // Every metrics column the readers (pednav-plot, pednav-diagnose, the soak) look up by
+    // its `columns` constant is in the header the writers wrote.
+    for (file, wanted) in [("learner.csv", &columns::learner::ALWAYS[..]), ("actor-0.csv", &columns::actor::ALL[..])] {
+        let text = std::fs::read_to_string(run_dir.join("metrics").join(file)).unwrap();
+        let header: Vec<&str> = text.lines().next().unwrap_or_default().split(',').collect();
+        for c in std::iter::once(columns::STEP).chain(wanted.iter().copied()) {
+            assert!(header.contains(&c), "metrics/{file} lacks the column {c}: {header:?}");
+        }
+    }
     let checkpointed = final_learner.updates;
     assert!(
         run_dir.join("checkpoints/learner/state.json").exists() && run_dir.join("checkpoints/curriculum.json").exists()
@@ -234,7 +245,7 @@ fn two_runs_side_by_side_do_not_interfere_and_stop_at_their_budget() {
         let status = wait_for(&run_dir, "the run stopping at its update budget", || child.try_wait().unwrap());
         assert!(status.success(), "{} exited with {status}", run_dir.display());
         let l = learner(&run_dir).unwrap();
-        assert_eq!(l.status, "max_updates");
+        assert_eq!(l.status, ProcessStatus::MaxUpdates);
         assert_eq!(l.updates, max_updates, "each run kept its own budget");
         let a = actor(&run_dir, "actor-0.1").expect("the actor's final stats");
         let streams = &l.streams;

@@ -21,7 +21,7 @@ use std::time::{Duration, Instant};
 use anyhow::{Context, Result, bail};
 use pednav_nets::DeviceSpec;
 use pednav_runtime::ipc::HeartbeatSubscriber;
-use pednav_runtime::messages::{Heartbeat, process_kind};
+use pednav_runtime::messages::{Heartbeat, ProcessKind};
 use pednav_runtime::{Ipc, RestartRecord, RunConfig, RunDir, StopFlag, run_prefix};
 
 use crate::exit_cause::ExitCause;
@@ -41,7 +41,7 @@ struct Proc {
     restarts: VecDeque<Instant>,
     total_restarts: u32,
     /// Its heartbeats' (kind, id).
-    heartbeat: (u32, u32),
+    heartbeat: (ProcessKind, u32),
     /// Whether silence means a hang (the learner and the curriculum service; an actor
     /// legitimately stays silent while it waits for a restarting learner).
     watch_hang: bool,
@@ -215,9 +215,9 @@ pub struct Supervisor {
     learner: Proc,
     actors: Vec<Proc>,
     /// The newest heartbeat of each (kind, id).
-    latest: BTreeMap<(u32, u32), Heartbeat>,
+    latest: BTreeMap<(ProcessKind, u32), Heartbeat>,
     /// When each (kind, id) last sent one (cleared when its process restarts).
-    last_beat: BTreeMap<(u32, u32), Instant>,
+    last_beat: BTreeMap<(ProcessKind, u32), Instant>,
     /// `runtime.hang_secs`.
     hang: Duration,
     started: Instant,
@@ -242,7 +242,7 @@ impl Supervisor {
         )?;
         let heartbeats = ipc.heartbeat_subscriber()?;
         let rd = dir.root().display().to_string();
-        let mk = |name: String, bin: &str, args: Vec<String>, heartbeat: (u32, u32)| Proc {
+        let mk = |name: String, bin: &str, args: Vec<String>, heartbeat: (ProcessKind, u32)| Proc {
             log: dir.logs().join(format!("{name}.log")),
             name,
             binary: plan.bins.join(bin),
@@ -251,7 +251,7 @@ impl Supervisor {
             restarts: VecDeque::new(),
             total_restarts: 0,
             heartbeat,
-            watch_hang: heartbeat.0 != process_kind::ACTOR,
+            watch_hang: heartbeat.0 != ProcessKind::ACTOR,
             last_cause: None,
             restart_at: None,
             log_start: 0,
@@ -261,13 +261,13 @@ impl Supervisor {
             "curriculum".into(),
             "pednav-curriculum",
             vec!["serve".into(), "--run-dir".into(), rd.clone()],
-            (process_kind::CURRICULUM, 0),
+            (ProcessKind::CURRICULUM, 0),
         );
         let mut learner_args = vec!["--run-dir".into(), rd.clone(), "--device".into(), plan.learner_device.to_string()];
         if let Some(t) = plan.learner_threads {
             learner_args.extend(["--threads".into(), t.to_string()]);
         }
-        let mut learner = mk("learner".into(), "pednav-learner", learner_args, (process_kind::LEARNER, 0));
+        let mut learner = mk("learner".into(), "pednav-learner", learner_args, (ProcessKind::LEARNER, 0));
         let mut actors: Vec<Proc> = (0..plan.actors)
             .map(|k| {
                 let mut args = vec![
@@ -281,7 +281,7 @@ impl Supervisor {
                 if let Some(m) = plan.envs {
                     args.extend(["--envs".into(), m.to_string()]);
                 }
-                mk(format!("actor-{k}"), "pednav-actor", args, (process_kind::ACTOR, k))
+                mk(format!("actor-{k}"), "pednav-actor", args, (ProcessKind::ACTOR, k))
             })
             .collect();
         curriculum.start()?;
@@ -363,8 +363,8 @@ impl Supervisor {
             let cause = p.exit_cause();
             p.count_restart(&status, &cause)?;
             let from = match p.heartbeat.0 {
-                process_kind::LEARNER => " from its last checkpoint",
-                process_kind::CURRICULUM => " from its saved state",
+                ProcessKind::LEARNER => " from its last checkpoint",
+                ProcessKind::CURRICULUM => " from its saved state",
                 _ => "",
             };
             let headline = cause.headline();
@@ -428,7 +428,7 @@ impl Supervisor {
     /// done and the time left at the pace of the last two minutes.
     fn budget_progress(&mut self) -> Option<String> {
         let (max_steps, max_updates) = self.budget;
-        let h = self.latest.get(&(process_kind::LEARNER, 0))?;
+        let h = self.latest.get(&(ProcessKind::LEARNER, 0))?;
         let now = Instant::now();
         self.pace.push_back((now, h.env_steps, h.updates));
         while self.pace.front().is_some_and(|p| now.duration_since(p.0) > Duration::from_secs(120)) {
@@ -453,13 +453,13 @@ impl Supervisor {
 
     /// What the learner and the curriculum service could not write, from their heartbeats.
     fn faults_line(&self) -> Option<String> {
-        let parts: Vec<String> = [(process_kind::LEARNER, "update"), (process_kind::CURRICULUM, "episodes")]
+        let parts: Vec<String> = [(ProcessKind::LEARNER, "update"), (ProcessKind::CURRICULUM, "episodes")]
             .into_iter()
             .filter_map(|(kind, unit)| self.latest.get(&(kind, 0)).and_then(|h| h.faults.describe(h.last_good, unit)))
             .chain(
                 self.latest
                     .iter()
-                    .filter(|(k, h)| k.0 == process_kind::ACTOR && h.faults.any())
+                    .filter(|(k, h)| k.0 == ProcessKind::ACTOR && h.faults.any())
                     .map(|(k, h)| format!("actor-{}: {}", k.1, h.faults.describe(0, "").unwrap_or_default())),
             )
             .collect();
@@ -495,14 +495,14 @@ impl Supervisor {
 /// curriculum service's restarts, added to the actors'.
 fn progress_line(
     elapsed: Duration,
-    latest: &BTreeMap<(u32, u32), Heartbeat>,
+    latest: &BTreeMap<(ProcessKind, u32), Heartbeat>,
     actors: &[Proc],
     service_restarts: u32,
 ) -> String {
     let s = elapsed.as_secs();
-    let learner = latest.get(&(process_kind::LEARNER, 0));
-    let curriculum = latest.get(&(process_kind::CURRICULUM, 0));
-    let actor_rate: f32 = latest.iter().filter(|(k, _)| k.0 == process_kind::ACTOR).map(|(_, h)| h.rate).sum();
+    let learner = latest.get(&(ProcessKind::LEARNER, 0));
+    let curriculum = latest.get(&(ProcessKind::CURRICULUM, 0));
+    let actor_rate: f32 = latest.iter().filter(|(k, _)| k.0 == ProcessKind::ACTOR).map(|(_, h)| h.rate).sum();
     let alive = actors.iter().filter(|a| a.running()).count();
     let restarts: u32 = actors.iter().map(|a| a.total_restarts).sum::<u32>() + service_restarts;
     format!(
@@ -536,7 +536,7 @@ mod tests {
             child: None,
             restarts: VecDeque::new(),
             total_restarts: 0,
-            heartbeat: (process_kind::LEARNER, 0),
+            heartbeat: (ProcessKind::LEARNER, 0),
             watch_hang: true,
             last_cause: None,
             restart_at: None,

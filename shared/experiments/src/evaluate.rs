@@ -60,7 +60,7 @@ impl EvalPolicy {
 }
 
 /// What an [`EpisodeObserver`] sees when a learned policy acts on every environment.
-pub struct Decision<'a> {
+pub struct ActingStep<'a> {
     /// The observations of all M environments (the full N_h windows for pixels).
     pub obs: &'a Obs,
     /// The actions taken, (M, 3).
@@ -79,7 +79,7 @@ pub struct Decision<'a> {
 /// on whether it is watched.
 pub trait EpisodeObserver {
     /// Every environment decided (called once per step, before the step).
-    fn decision(&mut self, decision: &Decision<'_>) -> Result<()>;
+    fn decision(&mut self, decision: &ActingStep<'_>) -> Result<()>;
     /// Environment `env` received `reward`; `ended` is `Some(terminated)` when its
     /// episode ended with this step (`false`: truncated at T_max).
     fn transition(&mut self, env: usize, reward: f32, ended: Option<bool>) -> Result<()>;
@@ -190,7 +190,7 @@ impl Evaluator {
                 let poses: Vec<Pose> = (0..m).map(|e| self.envs.pedestrian(e).pose).collect();
                 let d = policy.decide(&self.envs, true)?;
                 let obs = d.obs.as_ref().expect("asked for the observations");
-                observer.decision(&Decision {
+                observer.decision(&ActingStep {
                     obs,
                     actions: &d.actions,
                     log_probs: d.log_probs.as_ref(),

@@ -26,7 +26,7 @@ pub use device::{CUDA_BUILT, DeviceSpec};
 pub use encoder::{Encoder, Obs, Transitions, temporal_plan};
 pub use error::{NetError, Result};
 pub use heads::{CholeskyGaussian, FractionNet, Fractions, PolicyNet, PolicySample, QuantileGrid, QuantileNet};
-pub use nets::{ContrastHead, DsacNets, OnlineFeatures, StateHead, TransitionFeatures, TwinCritic};
+pub use nets::{ContrastHead, DsacNets, NetParts, OnlineFeatures, StateHead, TransitionFeatures, TwinCritic};
 pub use optim::{AdamW, AdamWConfig, OptimStep};
 pub use params::ParamStore;
 pub use stream::PolicyStream;

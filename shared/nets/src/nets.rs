@@ -117,6 +117,30 @@ fn l2_normalise(x: &Tensor) -> Result<Tensor> {
     Ok(x.broadcast_div(&norm)?)
 }
 
+/// Which networks a [`DsacNets`] holds beside the paper's four (policy, fraction
+/// proposal, quantile critic and its target): the one place that decides it — from a
+/// config ([`NetParts::of`]) or from what a checkpoint says it holds.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct NetParts {
+    /// The second critic and its target (`dsac.twin_critics`).
+    pub twin_critic: bool,
+    /// The state-prediction head (`dsac.state_aux_weight` > 0).
+    pub state_head: bool,
+    /// The temporal contrastive head (`dsac.contrast_weight` > 0).
+    pub contrast_head: bool,
+}
+
+impl NetParts {
+    /// The parts a learner configured with `dsac` trains.
+    pub fn of(dsac: &DsacConfig) -> NetParts {
+        NetParts {
+            twin_critic: dsac.builds_twin_critic(),
+            state_head: dsac.builds_state_head(),
+            contrast_head: dsac.builds_contrast_head(),
+        }
+    }
+}
+
 /// Policy, fraction-proposal, quantile and target quantile networks.
 #[derive(Clone)]
 pub struct DsacNets {
@@ -167,21 +191,35 @@ impl DsacNets {
         })
     }
 
-    /// The networks a learner with `dsac` trains: [`DsacNets::new`], plus the second
-    /// critic and the state-prediction head when `dsac` asks for them
-    /// ([`DsacConfig::builds_twin_critic`], [`DsacConfig::builds_state_head`]).
+    /// The networks a learner with `dsac` trains: [`DsacNets::new`] and the optional
+    /// parts `dsac` asks for ([`NetParts::of`]).
     pub fn for_learner(cfg: &NetsConfig, dsac: &DsacConfig, device: &Device, seed: u64) -> Result<DsacNets> {
+        DsacNets::with_parts(cfg, NetParts::of(dsac), device, seed)
+    }
+
+    /// [`DsacNets::new`] plus the optional `parts` (each from its own RNG stream of
+    /// `seed`, so the paper's four networks are the same whatever the parts).
+    pub fn with_parts(cfg: &NetsConfig, parts: NetParts, device: &Device, seed: u64) -> Result<DsacNets> {
         let mut nets = DsacNets::new(cfg, device, seed)?;
-        if dsac.builds_twin_critic() {
+        if parts.twin_critic {
             nets = nets.with_twin_critic(seed)?;
         }
-        if dsac.builds_state_head() {
+        if parts.state_head {
             nets = nets.with_state_head(cfg.state_dim, seed)?;
         }
-        if dsac.builds_contrast_head() {
+        if parts.contrast_head {
             nets = nets.with_contrast_head(seed)?;
         }
         Ok(nets)
+    }
+
+    /// The optional parts these networks hold.
+    pub fn parts(&self) -> NetParts {
+        NetParts {
+            twin_critic: self.twin.is_some(),
+            state_head: self.state_head.is_some(),
+            contrast_head: self.contrast_head.is_some(),
+        }
     }
 
     /// Add the second critic of twin critics (from its own stream of `seed`, so the

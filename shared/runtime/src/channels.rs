@@ -24,7 +24,7 @@ const WAIT_FOR_SUBSCRIBER: Duration = Duration::from_secs(3600);
 
 /// The observation of one step record.
 #[derive(Clone, Copy)]
-pub enum Observation<'a> {
+pub enum StepPayload<'a> {
     /// View `env` of a batch render.
     Frame {
         /// The batch.
@@ -36,20 +36,20 @@ pub enum Observation<'a> {
     State(&'a [f32]),
 }
 
-impl Observation<'_> {
+impl StepPayload<'_> {
     /// Bytes this observation takes in a record.
     pub fn bytes(&self) -> usize {
         match self {
-            Observation::Frame { frames, .. } => (frames.image_size() as usize).pow(2),
-            Observation::State(s) => state_payload::bytes(s.len()),
+            StepPayload::Frame { frames, .. } => (frames.image_size() as usize).pow(2),
+            StepPayload::State(s) => state_payload::bytes(s.len()),
         }
     }
 
-    /// Write all of it into `dst` (which must be exactly [`Observation::bytes`] long).
+    /// Write all of it into `dst` (which must be exactly [`StepPayload::bytes`] long).
     fn write(&self, dst: &mut [MaybeUninit<u8>]) {
         match self {
-            Observation::Frame { frames, env } => frames.copy_frame_uninit(*env, dst),
-            Observation::State(s) => state_payload::encode_state(s, dst),
+            StepPayload::Frame { frames, env } => frames.copy_frame_uninit(*env, dst),
+            StepPayload::State(s) => state_payload::encode_state(s, dst),
         }
     }
 }
@@ -75,7 +75,7 @@ impl StepWriter {
     /// Send one record: loan a sample, write `observation` into it, send. Returns a
     /// copy of the observation bytes (for the policy cache, whose window keeps its
     /// own), or `None` when stopping.
-    pub fn send(&self, header: StepHeader, observation: Observation<'_>) -> Result<Option<Vec<u8>>> {
+    pub fn send(&self, header: StepHeader, observation: StepPayload<'_>) -> Result<Option<Vec<u8>>> {
         if observation.bytes() != self.record_bytes {
             return Err(RuntimeError::Message(format!(
                 "an observation of {} bytes for step records of {}: the actor's config differs from the run's",

@@ -47,6 +47,26 @@ pub mod learner {
     pub const STATE_LOSS: &str = "state_loss";
     /// Temporal contrastive loss (only with `dsac.contrast_weight` > 0).
     pub const CONTRAST_LOSS: &str = "contrast_loss";
+
+    /// Every column the learner writes in every configuration (after [`super::STEP`]).
+    pub const ALWAYS: [&str; 16] = [
+        ELAPSED_S,
+        UPDATES,
+        ENV_STEPS_PER_S,
+        UPDATES_PER_S,
+        UPDATE_MS,
+        SAMPLE_MS,
+        REPLAY_TERMINAL,
+        REPLAY_NONTERMINAL,
+        CRITIC_LOSS,
+        POLICY_LOSS,
+        FRACTION_LOSS,
+        ALPHA_LOSS,
+        ALPHA,
+        ENTROPY,
+        Q_MEAN,
+        SKIPPED_UPDATES,
+    ];
 }
 
 /// `metrics/episodes.csv` (written by the curriculum service, one row per episode; its
@@ -90,4 +110,15 @@ pub mod actor {
     pub const SIM_MS_PER_STEP: &str = "sim_ms_per_step";
     /// Milliseconds of rendering and sending per env step.
     pub const RENDER_SEND_MS_PER_STEP: &str = "render_send_ms_per_step";
+
+    /// Every column an actor writes (after [`super::STEP`]).
+    pub const ALL: [&str; 7] = [
+        STEPS_PER_S,
+        EPISODES,
+        POLICY_VERSION,
+        RECENT_RETURN,
+        INFERENCE_MS_PER_STEP,
+        SIM_MS_PER_STEP,
+        RENDER_SEND_MS_PER_STEP,
+    ];
 }

@@ -16,7 +16,8 @@
 //! - [`signal`]: Ctrl-C / SIGTERM as a flag;
 //! - [`stats`]: the stats files each process writes and the soak and tests read;
 //! - [`write_health`]: writes that failed (a full disk), logged once per interval and
-//!   reported in the heartbeat while the process goes on.
+//!   reported in the heartbeat while the process goes on;
+//! - [`log_health`]: the process's own log lines, counted when the log refuses them.
 
 #![warn(missing_docs)]
 
@@ -26,6 +27,7 @@ pub mod config;
 pub mod error;
 pub mod generations;
 pub mod ipc;
+pub mod log_health;
 pub mod memory;
 pub mod messages;
 pub mod metrics;
@@ -44,7 +46,8 @@ pub use rundir::{RestartRecord, RunDir};
 pub use signal::StopFlag;
 
 /// Set up `tracing` for a process: human-readable lines on stderr (the launcher
-/// sends them to `logs/<process>.log`), level from `RUST_LOG` (default info).
+/// sends them to `logs/<process>.log`; lines the log refuses are counted and shown in
+/// the heartbeat, [`log_health`]), level from `RUST_LOG` (default info).
 pub fn init_logging() {
     let filter = tracing_subscriber::EnvFilter::try_from_default_env()
         .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("info"));
@@ -52,7 +55,7 @@ pub fn init_logging() {
         .with_env_filter(filter)
         .with_target(false)
         .with_ansi(std::io::IsTerminal::is_terminal(&std::io::stderr()))
-        .with_writer(std::io::stderr)
+        .with_writer(|| log_health::LoggedWriter)
         .try_init();
 }
 

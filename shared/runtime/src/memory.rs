@@ -116,7 +116,7 @@ impl MemoryPlan {
 
 /// Which part of the run a [`MemoryItem`] is.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum Part {
+pub enum MemoryPart {
     /// The replay's non-terminal ring.
     Ring,
     /// The replay's terminal pool.
@@ -137,7 +137,7 @@ pub enum Part {
 #[derive(Debug, Clone)]
 pub struct MemoryItem {
     /// Which part.
-    pub part: Part,
+    pub part: MemoryPart,
     /// What it is, for people.
     pub what: &'static str,
     /// How it is counted (e.g. `200,000 steps × 1,789 B`).
@@ -168,7 +168,7 @@ impl MemoryEstimate {
     }
 
     /// The component of `part`.
-    pub fn item(&self, part: Part) -> &MemoryItem {
+    pub fn item(&self, part: MemoryPart) -> &MemoryItem {
         self.items.iter().find(|i| i.part == part).expect("every part is estimated")
     }
 
@@ -261,7 +261,7 @@ impl RunConfig {
         };
         let mut items = vec![
             MemoryItem {
-                part: Part::Ring,
+                part: MemoryPart::Ring,
                 what: "replay, non-terminal ring",
                 how: format!("{} steps × {} B", group(ring_n), group(fp.ring_step as u128)),
                 fields: format!(
@@ -274,7 +274,7 @@ impl RunConfig {
                 per_item: fp.ring_step as u128,
             },
             MemoryItem {
-                part: Part::TerminalPool,
+                part: MemoryPart::TerminalPool,
                 what: "replay, terminal pool",
                 how: format!(
                     "{} entries × {} B (each copies its N_h + n = {} frames)",
@@ -314,7 +314,7 @@ impl RunConfig {
         let trained = all_params - target_params;
         let on_host = !plan.learner_device.is_gpu();
         items.push(MemoryItem {
-            part: Part::Networks,
+            part: MemoryPart::Networks,
             what: "learner networks",
             how: format!(
                 "{} trained parameters × 4 B × 4 (weights, 2 AdamW moments, gradient) + {} target parameters × 4 B",
@@ -357,7 +357,7 @@ impl RunConfig {
             if self.nets.encoder == EncoderKind::Mlp { 0.0 } else { b * side2 * 4.0 * encoders as f64 * enc_factor };
         let head_bytes = b * (self.nets.quantiles * self.nets.hidden) as f64 * 4.0 * critics as f64 * HEAD_FACTOR;
         items.push(MemoryItem {
-            part: Part::Batch,
+            part: MemoryPart::Batch,
             what: "learner batch and activations",
             how: if self.nets.encoder == EncoderKind::Mlp {
                 format!(
@@ -384,7 +384,7 @@ impl RunConfig {
         let per_actor =
             ACTOR_BASE_BYTES as u128 + plan.envs_per_actor as u128 * ACTOR_ENV_BYTES as u128 + acting as u128 * 8;
         items.push(MemoryItem {
-            part: Part::Actors,
+            part: MemoryPart::Actors,
             what: "actors",
             how: format!(
                 "{} × ({} renderer and simulator + {} envs × {} + acting network {}; renderer and env sizes measured)",
@@ -405,7 +405,7 @@ impl RunConfig {
         let record = (self.observation_bytes() + std::mem::size_of::<StepHeader>()) as u128;
         let samples = (2 * (self.runtime.step_buffer + STEP_ROUND_PER_ACTOR) + 4) as u128;
         items.push(MemoryItem {
-            part: Part::StepStream,
+            part: MemoryPart::StepStream,
             what: "step stream (shared memory)",
             how: format!("{} actors × {} records × {} B", plan.actors, group(samples), group(record)),
             fields: format!("runtime.step_buffer = {}", self.runtime.step_buffer),
@@ -414,7 +414,7 @@ impl RunConfig {
             per_item: 0,
         });
         items.push(MemoryItem {
-            part: Part::Processes,
+            part: MemoryPart::Processes,
             what: "launcher, curriculum, learner runtime",
             how: "measured constant".into(),
             fields: "(fixed)".into(),
@@ -450,18 +450,18 @@ impl MemoryEstimate {
         host.sort_by_key(|i| std::cmp::Reverse(i.bytes));
         let largest = host[0];
         let (field, value) = match largest.part {
-            Part::Ring => ("replay.nonterminal_capacity", cfg.replay.nonterminal_capacity.to_string()),
-            Part::TerminalPool => ("replay.terminal_capacity", cfg.replay.terminal_capacity.to_string()),
-            Part::Networks => ("nets.image_size", cfg.nets.image_size.to_string()),
-            Part::Batch => ("dsac.batch_size", cfg.dsac.batch_size.to_string()),
-            Part::Actors => ("runtime.envs_per_actor", cfg.runtime.envs_per_actor.to_string()),
-            Part::StepStream => ("runtime.step_buffer", cfg.runtime.step_buffer.to_string()),
-            Part::Processes => ("runtime", "(the processes' fixed overhead)".to_string()),
+            MemoryPart::Ring => ("replay.nonterminal_capacity", cfg.replay.nonterminal_capacity.to_string()),
+            MemoryPart::TerminalPool => ("replay.terminal_capacity", cfg.replay.terminal_capacity.to_string()),
+            MemoryPart::Networks => ("nets.image_size", cfg.nets.image_size.to_string()),
+            MemoryPart::Batch => ("dsac.batch_size", cfg.dsac.batch_size.to_string()),
+            MemoryPart::Actors => ("runtime.envs_per_actor", cfg.runtime.envs_per_actor.to_string()),
+            MemoryPart::StepStream => ("runtime.step_buffer", cfg.runtime.step_buffer.to_string()),
+            MemoryPart::Processes => ("runtime", "(the processes' fixed overhead)".to_string()),
         };
         let parts: Vec<String> =
             host.iter().take(3).map(|i| format!("{} {} ({})", i.what, human(i.bytes), i.fields)).collect();
         // How to fix it: the pools are what scales; say how many items fit.
-        let (ring, term) = (self.item(Part::Ring), self.item(Part::TerminalPool));
+        let (ring, term) = (self.item(MemoryPart::Ring), self.item(MemoryPart::TerminalPool));
         let min_ring = (cfg.dsac.warmup as u128).max(cfg.dsac.batch_size as u128);
         let mut fixes = Vec::new();
         for (i, name, least) in [(term, "replay.terminal_capacity", 1), (ring, "replay.nonterminal_capacity", min_ring)]
@@ -491,8 +491,8 @@ impl MemoryEstimate {
         }
         if fixes.is_empty() {
             fixes.push(match largest.part {
-                Part::Actors => "use fewer actors (--actors) or envs per actor (runtime.envs_per_actor)".into(),
-                Part::Networks | Part::Batch => {
+                MemoryPart::Actors => "use fewer actors (--actors) or envs per actor (runtime.envs_per_actor)".into(),
+                MemoryPart::Networks | MemoryPart::Batch => {
                     "use a smaller dsac.batch_size, nets.history or nets.image_size, or train on a GPU (--device)"
                         .into()
                 }
@@ -603,35 +603,35 @@ mod tests {
         let cfg = smoke_with(&[]);
         let est = cfg.memory_estimate(&MemoryPlan::of(&cfg, 1)).unwrap();
         let (frame, n) = (42 * 42, 4);
-        assert_eq!(est.item(Part::Ring).bytes, 20_000 * (frame + 8 + 12 + 4 + 1));
-        assert_eq!(est.item(Part::TerminalPool).bytes, 2_000 * ((n + 1) * frame + n * (12 + 4)));
+        assert_eq!(est.item(MemoryPart::Ring).bytes, 20_000 * (frame + 8 + 12 + 4 + 1));
+        assert_eq!(est.item(MemoryPart::TerminalPool).bytes, 2_000 * ((n + 1) * frame + n * (12 + 4)));
         // Bounded by the run's env steps (the terminal pool by half of them), with the
         // state-prediction targets (22 floats per step and per entry).
         let cfg = smoke_with(&["runtime.max_env_steps=3000", "dsac.state_aux_weight=1.0"]);
         let est = cfg.memory_estimate(&MemoryPlan::of(&cfg, 1)).unwrap();
         let target = 22 * 4;
-        assert_eq!(est.item(Part::Ring).bytes, 3_000 * (frame + 25 + target));
-        assert_eq!(est.item(Part::TerminalPool).bytes, 1_500 * ((n + 1) * frame + n * 16 + target));
+        assert_eq!(est.item(MemoryPart::Ring).bytes, 3_000 * (frame + 25 + target));
+        assert_eq!(est.item(MemoryPart::TerminalPool).bytes, 1_500 * ((n + 1) * frame + n * 16 + target));
         // 3-step transitions: each entry copies N_h + 3 frames and N_h + 2 history
         // entries, and 3 of every 4 steps can be terminal entries.
         let cfg = smoke_with(&["runtime.max_env_steps=3000", "dsac.n_step=3"]);
         let est = cfg.memory_estimate(&MemoryPlan::of(&cfg, 1)).unwrap();
-        assert_eq!(est.item(Part::Ring).bytes, 3_000 * (frame + 25));
-        assert_eq!(est.item(Part::TerminalPool).bytes, 2_000 * ((n + 3) * frame + (n + 2) * 16));
+        assert_eq!(est.item(MemoryPart::Ring).bytes, 3_000 * (frame + 25));
+        assert_eq!(est.item(MemoryPart::TerminalPool).bytes, 2_000 * ((n + 3) * frame + (n + 2) * 16));
         let cfg = smoke_with(&["runtime.max_env_steps=2000", "dsac.n_step=3"]);
         let est = cfg.memory_estimate(&MemoryPlan::of(&cfg, 1)).unwrap();
-        assert_eq!(est.item(Part::TerminalPool).bytes, 1_500 * ((n + 3) * frame + (n + 2) * 16));
+        assert_eq!(est.item(MemoryPart::TerminalPool).bytes, 1_500 * ((n + 3) * frame + (n + 2) * 16));
         // State observations: 22 f32 per frame, history 1.
         let cfg = RunConfig::load(&configs().join("cpu_state.toml")).unwrap();
         let est = cfg.memory_estimate(&MemoryPlan::of(&cfg, 2)).unwrap();
-        assert_eq!(est.item(Part::Ring).bytes, 500_000 * (22 * 4 + 25));
-        assert_eq!(est.item(Part::TerminalPool).bytes, 200_000 * (2 * 22 * 4 + 16));
+        assert_eq!(est.item(MemoryPart::Ring).bytes, 500_000 * (22 * 4 + 25));
+        assert_eq!(est.item(MemoryPart::TerminalPool).bytes, 200_000 * (2 * 22 * 4 + 16));
         // A GPU learner's networks and batches are not counted against the host.
         let gpu = MemoryPlan { learner_device: DeviceSpec::Cuda(0), ..MemoryPlan::of(&cfg, 2) };
         let on_gpu = cfg.memory_estimate(&gpu).unwrap();
         assert_eq!(
             on_gpu.host_total(),
-            est.host_total() - est.item(Part::Networks).bytes - est.item(Part::Batch).bytes
+            est.host_total() - est.item(MemoryPart::Networks).bytes - est.item(MemoryPart::Batch).bytes
         );
     }
 

@@ -8,16 +8,51 @@
 
 use iceoryx2::prelude::ZeroCopySend;
 
-/// Flag bits of [`StepHeader::flags`].
-pub mod step_flags {
+/// `contains` and `with` of a `u32` bit-set newtype: the one rule of the wire's flag types.
+macro_rules! bit_set {
+    ($t:ident) => {
+        impl $t {
+            /// Whether every bit of `other` is set (never for the empty set).
+            pub fn contains(self, other: $t) -> bool {
+                self.0 & other.0 == other.0 && other.0 != 0
+            }
+
+            /// These bits and `other`'s.
+            #[must_use]
+            pub fn with(self, other: $t) -> $t {
+                $t(self.0 | other.0)
+            }
+        }
+    };
+}
+
+bit_set!(StepFlags);
+bit_set!(Faults);
+
+/// Flag bits of [`StepHeader::flags`]: what happened at a step, as a set. The actor
+/// builds it with [`StepFlags::with`] and the learner reads it with
+/// [`StepFlags::contains`]; the bit values are the wire format and never change.
+#[repr(C)]
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, ZeroCopySend)]
+pub struct StepFlags(pub u32);
+
+impl StepFlags {
+    /// Nothing happened (a step inside an episode).
+    pub const NONE: StepFlags = StepFlags(0);
     /// First step of an episode: the frame is the reset observation; action and reward are unused.
-    pub const FIRST: u32 = 1;
+    pub const FIRST: StepFlags = StepFlags(1);
     /// The goal was reached with this step (no bootstrapping).
-    pub const TERMINAL: u32 = 2;
+    pub const TERMINAL: StepFlags = StepFlags(2);
     /// The episode hit T_max with this step (bootstrapping).
-    pub const TRUNCATED: u32 = 4;
+    pub const TRUNCATED: StepFlags = StepFlags(4);
     /// The agent collided during this step.
-    pub const COLLIDED: u32 = 8;
+    pub const COLLIDED: StepFlags = StepFlags(8);
+
+    /// These flags and `other`'s when `on`, else these.
+    #[must_use]
+    pub fn with_if(self, other: StepFlags, on: bool) -> StepFlags {
+        if on { self.with(other) } else { self }
+    }
 }
 
 /// The payload of a step record in state mode: the state vector as little-endian
@@ -74,8 +109,8 @@ pub struct StepHeader {
     /// Incarnation of the actor process (its start counter), so a restarted actor's
     /// streams never splice into the dead one's.
     pub incarnation: u32,
-    /// [`step_flags`] bits.
-    pub flags: u32,
+    /// What happened at this step.
+    pub flags: StepFlags,
     /// Episode id, unique per (actor, env, incarnation).
     pub episode: u64,
     /// Step index within the episode (0 for the reset observation).
@@ -97,9 +132,9 @@ pub struct StepHeader {
 }
 
 impl StepHeader {
-    /// Is a flag bit set?
-    pub fn has(&self, flag: u32) -> bool {
-        self.flags & flag != 0
+    /// Is a flag set?
+    pub fn has(&self, flag: StepFlags) -> bool {
+        self.flags.contains(flag)
     }
 
     /// CRC-32 of a record as sender and receiver both compute it (sequence number,
@@ -197,22 +232,26 @@ pub struct WeightsHeader {
     pub published_ns: u64,
 }
 
-/// Kind of process a [`Heartbeat`] comes from.
-pub mod process_kind {
+/// Kind of process a [`Heartbeat`] comes from (the code is the wire format).
+#[repr(C)]
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Hash, PartialOrd, Ord, ZeroCopySend)]
+pub struct ProcessKind(pub u32);
+
+impl ProcessKind {
     /// An actor.
-    pub const ACTOR: u32 = 1;
+    pub const ACTOR: ProcessKind = ProcessKind(1);
     /// The learner.
-    pub const LEARNER: u32 = 2;
+    pub const LEARNER: ProcessKind = ProcessKind(2);
     /// The curriculum service.
-    pub const CURRICULUM: u32 = 3;
+    pub const CURRICULUM: ProcessKind = ProcessKind(3);
 }
 
 /// Periodic liveness and progress of one process (for the launcher's progress line and logs).
 #[repr(C)]
 #[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend)]
 pub struct Heartbeat {
-    /// [`process_kind`] code.
-    pub kind: u32,
+    /// The process that sends it.
+    pub kind: ProcessKind,
     /// Actor id (0 for the others).
     pub id: u32,
     /// Process id.
@@ -258,17 +297,8 @@ impl Faults {
     pub const METRICS: Faults = Faults(4);
     /// The failure is a full disk (or quota).
     pub const DISK_FULL: Faults = Faults(8);
-
-    /// Whether every bit of `other` is set.
-    pub fn contains(self, other: Faults) -> bool {
-        self.0 & other.0 == other.0 && other.0 != 0
-    }
-
-    /// These faults and `other`'s.
-    #[must_use]
-    pub fn with(self, other: Faults) -> Faults {
-        Faults(self.0 | other.0)
-    }
+    /// The process's log (`logs/<process>.log`) refuses its lines.
+    pub const LOG: Faults = Faults(16);
 
     /// Whether any fault is set.
     pub fn any(self) -> bool {
@@ -292,6 +322,37 @@ impl Faults {
         if self.contains(Faults::METRICS) {
             parts.push(format!("metrics or stats waiting in memory: {why}"));
         }
+        if self.contains(Faults::LOG) {
+            parts.push(format!("log lines lost: {why}"));
+        }
         (!parts.is_empty()).then(|| parts.join("; "))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::{ProcessKind, StepFlags};
+
+    #[test]
+    fn step_flags_are_a_set_with_fixed_wire_bits() {
+        // The bit values are the wire format: a reader built from other source agrees on them.
+        assert_eq!(
+            [StepFlags::FIRST, StepFlags::TERMINAL, StepFlags::TRUNCATED, StepFlags::COLLIDED].map(|f| f.0),
+            [1, 2, 4, 8]
+        );
+        let f = StepFlags::NONE
+            .with_if(StepFlags::TERMINAL, true)
+            .with_if(StepFlags::COLLIDED, true)
+            .with_if(StepFlags::TRUNCATED, false);
+        assert!(f.contains(StepFlags::TERMINAL) && f.contains(StepFlags::COLLIDED));
+        assert!(!f.contains(StepFlags::TRUNCATED) && !f.contains(StepFlags::FIRST));
+        assert!(f.contains(StepFlags::TERMINAL.with(StepFlags::COLLIDED)));
+        assert!(!f.contains(StepFlags::NONE), "the empty set is never 'set'");
+        assert_eq!(f.0, 10);
+    }
+
+    #[test]
+    fn process_kinds_keep_their_codes() {
+        assert_eq!([ProcessKind::ACTOR, ProcessKind::LEARNER, ProcessKind::CURRICULUM].map(|k| k.0), [1, 2, 3]);
     }
 }

@@ -12,10 +12,64 @@ use std::collections::BTreeMap;
 
 use serde::{Deserialize, Serialize};
 
-/// Status of a process that is still running.
-pub const RUNNING: &str = "running";
-/// Status of a learner stopped by the launcher (its final checkpoint is written).
-pub const STOPPED: &str = "stopped";
+/// What a process is doing, or why it ended (the `status` of its stats file).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+pub enum ProcessStatus {
+    /// Still running.
+    #[serde(rename = "running")]
+    Running,
+    /// Stopped by the launcher (a learner's final checkpoint is written).
+    #[serde(rename = "stopped")]
+    Stopped,
+    /// An actor whose step stream ended on its own (its learner is gone).
+    #[serde(rename = "ended")]
+    Ended,
+    /// An actor stopped before the learner came up (it sent nothing).
+    #[serde(rename = "stopped before the learner came up")]
+    StoppedBeforeLearner,
+    /// The learner reached `runtime.max_updates`.
+    #[serde(rename = "max_updates")]
+    MaxUpdates,
+    /// The learner reached `runtime.max_env_steps`.
+    #[serde(rename = "max_env_steps")]
+    MaxEnvSteps,
+}
+
+impl ProcessStatus {
+    /// The word written in the stats file (and the launcher's done marker).
+    pub fn as_str(self) -> &'static str {
+        match self {
+            ProcessStatus::Running => "running",
+            ProcessStatus::Stopped => "stopped",
+            ProcessStatus::Ended => "ended",
+            ProcessStatus::StoppedBeforeLearner => "stopped before the learner came up",
+            ProcessStatus::MaxUpdates => "max_updates",
+            ProcessStatus::MaxEnvSteps => "max_env_steps",
+        }
+    }
+}
+
+impl std::fmt::Display for ProcessStatus {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.as_str())
+    }
+}
+
+/// The learner's replay-ratio limiter counters (its `RateLimiter`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct LimiterCounters {
+    /// Steps before the first update.
+    pub warmup: u64,
+    /// Inserted steps per update.
+    pub interval: u64,
+    /// How many updates the learner may fall behind before inserts block.
+    pub slack: u64,
+    /// Steps inserted so far.
+    pub inserted: u64,
+    /// Updates done so far.
+    pub updates: u64,
+}
 
 /// One actor incarnation's stream as its sender counts it.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -27,8 +81,8 @@ pub struct ActorStats {
     pub incarnation: u32,
     /// Its process id.
     pub pid: u32,
-    /// [`RUNNING`], or why it ended.
-    pub status: String,
+    /// Running, or why it ended.
+    pub status: ProcessStatus,
     /// Step records sent.
     pub steps_sent: u64,
     /// Wrapping sum of the records' CRC-32s (the learner sums the same).
@@ -67,9 +121,8 @@ pub struct StreamTally {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct LearnerStats {
-    /// [`RUNNING`], [`STOPPED`], or the budget that ended the run (`max_updates`,
-    /// `max_env_steps`).
-    pub status: String,
+    /// Running, stopped, or the budget that ended the run.
+    pub status: ProcessStatus,
     /// Its process id.
     pub pid: u32,
     /// Updates done (over the whole run).
@@ -80,8 +133,8 @@ pub struct LearnerStats {
     pub received_this_process: u64,
     /// Step records received over the whole run (all learner processes).
     pub received_total: u64,
-    /// The replay-ratio limiter's counters (the learner's `RateLimiter`, as it serialises).
-    pub limiter: serde_json::Value,
+    /// The replay-ratio limiter's counters.
+    pub limiter: LimiterCounters,
     /// Every actor incarnation's stream this process received.
     pub streams: Vec<StreamTally>,
 }
@@ -137,13 +190,13 @@ mod tests {
         let dir = crate::RunDir::new(&root);
         std::fs::create_dir_all(dir.stats()).unwrap();
         let learner = LearnerStats {
-            status: STOPPED.into(),
+            status: ProcessStatus::Stopped,
             pid: 7,
             updates: 40,
             resumed_from_update: None,
             received_this_process: 320,
             received_total: 320,
-            limiter: serde_json::json!({"inserted": 320}),
+            limiter: LimiterCounters { warmup: 100, interval: 8, slack: 4, inserted: 320, updates: 40 },
             streams: vec![StreamTally { actor: 0, incarnation: 1, records: 320, checksum: 99, gaps: 0 }],
         };
         dir.write_stats("learner", &learner).unwrap();

@@ -9,7 +9,7 @@
 //!
 //! Invariant: a kind of write is failing from its first failed attempt to its next
 //! successful one, and [`WriteHealth::faults`] is exactly the union of the failing
-//! kinds' faults.
+//! kinds' faults and the process log's ([`crate::log_health`]).
 
 use std::collections::BTreeMap;
 use std::time::{Duration, Instant};
@@ -79,9 +79,10 @@ impl WriteHealth {
         }
     }
 
-    /// The faults of every failing write.
+    /// The faults of every failing write, and of the process's log
+    /// ([`crate::log_health::STDERR_LOG`]).
     pub fn faults(&self) -> Faults {
-        self.failing.values().fold(Faults::NONE, |acc, f| acc.with(f.fault))
+        self.failing.values().fold(crate::log_health::STDERR_LOG.faults(), |acc, f| acc.with(f.fault))
     }
 
     /// Failure warnings logged so far (what the once-per-interval throttle let through).

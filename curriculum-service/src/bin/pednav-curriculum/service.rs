@@ -16,7 +16,7 @@ use std::time::{Duration, Instant};
 use anyhow::{Context, Result};
 use pednav_curriculum::{Category, Curriculum, CurriculumError, EpisodeOutcome, Fit, ServiceState};
 use pednav_runtime::ipc::{EpisodeSubscriber, HeartbeatPublisher, TaskServer};
-use pednav_runtime::messages::{EpisodeHeader, Faults, Heartbeat, TaskResponse, process_kind};
+use pednav_runtime::messages::{EpisodeHeader, Faults, Heartbeat, ProcessKind, TaskResponse};
 use pednav_runtime::stats::{CurriculumStats, GateOpened};
 use pednav_runtime::write_health::WriteHealth;
 use pednav_runtime::{AppendFile, Ipc, Metrics, RunConfig, RunDir, StopFlag, columns, run_prefix};
@@ -374,7 +374,7 @@ impl CurriculumService {
             "curriculum"
         );
         let _ = self.heartbeat.send_copy(Heartbeat {
-            kind: process_kind::CURRICULUM,
+            kind: ProcessKind::CURRICULUM,
             pid: std::process::id(),
             phase: s.in_acl_phase() as u32,
             acl_steps: s.t_c(),

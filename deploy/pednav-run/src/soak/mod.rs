@@ -69,7 +69,7 @@ use std::time::{Duration, Instant};
 use anyhow::{Context, Result, bail};
 use clap::Args;
 use pednav_runtime::ipc::STEP_ROUND_PER_ACTOR;
-use pednav_runtime::stats::{self, ActorStats, LearnerStats};
+use pednav_runtime::stats::{self, ActorStats, LearnerStats, ProcessStatus};
 use pednav_runtime::{RunConfig, RunDir, StopFlag, columns};
 use rand_chacha::ChaCha8Rng;
 use rand_chacha::rand_core::{RngCore, SeedableRng};

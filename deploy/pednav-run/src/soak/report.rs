@@ -239,15 +239,15 @@ impl Report<'_> {
         // End figures.
         let last = obs.last_sample();
         let final_learner = read_stats::<LearnerStats>(&RunDir::new(self.run_dir), "learner");
-        let final_status = final_learner.as_ref().map(|v| v.status.clone());
+        let final_status = final_learner.as_ref().map(|v| v.status.as_str());
         md += &format!(
             "\nAt the end (metrics/learner.csv): env steps {}, updates {}; the last learner's status: {} (a final \
              checkpoint is written on `stopped`).\n",
             last.map_or("—".into(), |s| s.env_steps.to_string()),
             last.map_or("—".into(), |s| s.updates.to_string()),
-            final_status.as_deref().unwrap_or("—"),
+            final_status.unwrap_or("—"),
         );
-        if final_status.as_deref() != Some("stopped") {
+        if final_learner.as_ref().map(|v| v.status) != Some(ProcessStatus::Stopped) {
             failures.push(format!("the last learner did not stop cleanly (status {final_status:?})"));
         }
 

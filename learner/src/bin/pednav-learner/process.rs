@@ -19,8 +19,8 @@ use pednav_learner::{
 };
 use pednav_runtime::columns::learner as col;
 use pednav_runtime::ipc::{HeartbeatPublisher, StepSample, StepSubscriber, receive_step_round};
-use pednav_runtime::messages::{Faults, Heartbeat, StepHeader, process_kind, state_payload, step_flags};
-use pednav_runtime::stats::{self, LearnerStats, StreamTally};
+use pednav_runtime::messages::{Faults, Heartbeat, ProcessKind, StepFlags, StepHeader, state_payload};
+use pednav_runtime::stats::{LearnerStats, LimiterCounters, ProcessStatus, StreamTally};
 use pednav_runtime::weights::WeightsBroadcaster;
 use pednav_runtime::write_health::WriteHealth;
 use pednav_runtime::{Ipc, Metrics, RunConfig, RunDir, StopFlag, run_prefix};
@@ -92,11 +92,11 @@ impl Learner {
         };
         self.replay.push(&Step {
             stream: h.stream(),
-            first: h.has(step_flags::FIRST),
+            first: h.has(StepFlags::FIRST),
             frame,
             action: h.action,
             reward: h.reward,
-            terminal: h.has(step_flags::TERMINAL),
+            terminal: h.has(StepFlags::TERMINAL),
             state_target: Some(&h.state),
         })?;
         if self.received > self.refill_until {
@@ -189,7 +189,7 @@ pub struct LearnerProcess {
     last_checkpoint: Instant,
     interval: Interval,
     /// Set once `runtime.max_updates` or `max_env_steps` is reached.
-    budget_spent: Option<&'static str>,
+    budget_spent: Option<ProcessStatus>,
     /// Whether the done marker (for the launcher) is written.
     marker_written: bool,
     /// Writes that failed (checkpoint, metrics, stats) and are retried.
@@ -309,12 +309,12 @@ impl LearnerProcess {
         // `metrics_every_secs` still leaves a learner log.
         self.log_interval()?;
         self.final_save()?;
-        let status = self.budget_spent.unwrap_or(stats::STOPPED);
+        let status = self.budget_spent.unwrap_or(ProcessStatus::Stopped);
         self.write_stats(status);
         tracing::info!(
             updates = self.learner.dsac.updates,
             received = self.received_total,
-            status,
+            status = status.as_str(),
             "final checkpoint written"
         );
         Ok(())
@@ -435,7 +435,7 @@ impl LearnerProcess {
     }
 
     /// Write the learner's live stats; a failure is logged once per interval.
-    fn write_stats(&mut self, status: &str) {
+    fn write_stats(&mut self, status: ProcessStatus) {
         match write_stats(&self.dir, &self.learner, self.received_total, status) {
             Ok(()) => self.health.succeeded("stats"),
             Err(e) => self.health.failed(
@@ -450,7 +450,7 @@ impl LearnerProcess {
 
     /// Tell the launcher the budget is spent; retried at every step until it is written.
     fn write_done_marker(&mut self) {
-        let reason = self.budget_spent.unwrap_or("budget");
+        let reason = self.budget_spent.map_or("budget", ProcessStatus::as_str);
         match std::fs::write(self.dir.done_marker(), reason) {
             Ok(()) => {
                 self.marker_written = true;
@@ -511,7 +511,7 @@ impl LearnerProcess {
             "learner"
         );
         let _ = self.heartbeat.send_copy(Heartbeat {
-            kind: process_kind::LEARNER,
+            kind: ProcessKind::LEARNER,
             pid: std::process::id(),
             env_steps: self.received_total,
             updates: l.dsac.updates,
@@ -521,7 +521,7 @@ impl LearnerProcess {
             faults: self.health.faults(),
             ..Heartbeat::default()
         });
-        self.write_stats(stats::RUNNING);
+        self.write_stats(ProcessStatus::Running);
         Ok(())
     }
 
@@ -531,15 +531,15 @@ impl LearnerProcess {
     fn check_budget(&mut self) {
         let r = &self.cfg.runtime;
         self.budget_spent = if r.max_updates > 0 && self.learner.dsac.updates >= r.max_updates {
-            Some("max_updates")
+            Some(ProcessStatus::MaxUpdates)
         } else if r.max_env_steps > 0 && self.received_total >= r.max_env_steps {
-            Some("max_env_steps")
+            Some(ProcessStatus::MaxEnvSteps)
         } else {
             None
         };
         if let Some(reason) = self.budget_spent {
             tracing::info!(
-                reason,
+                reason = reason.as_str(),
                 updates = self.learner.dsac.updates,
                 "budget spent; waiting for the launcher to stop the run"
             );
@@ -549,7 +549,7 @@ impl LearnerProcess {
     }
 }
 
-fn write_stats(dir: &RunDir, l: &Learner, received_total: u64, status: &str) -> Result<()> {
+fn write_stats(dir: &RunDir, l: &Learner, received_total: u64, status: ProcessStatus) -> Result<()> {
     let streams = l
         .tallies
         .iter()
@@ -562,13 +562,19 @@ fn write_stats(dir: &RunDir, l: &Learner, received_total: u64, status: &str) -> 
         })
         .collect();
     let stats = LearnerStats {
-        status: status.to_string(),
+        status,
         pid: std::process::id(),
         updates: l.dsac.updates,
         resumed_from_update: l.resumed_from,
         received_this_process: l.received,
         received_total,
-        limiter: serde_json::to_value(l.limiter)?,
+        limiter: LimiterCounters {
+            warmup: l.limiter.warmup,
+            interval: l.limiter.interval,
+            slack: l.limiter.slack,
+            inserted: l.limiter.inserted,
+            updates: l.limiter.updates,
+        },
         streams,
     };
     dir.write_stats("learner", &stats)?;

@@ -30,7 +30,7 @@ use pednav_nets::{DsacNets, Obs, OnlineFeatures};
 use serde::Serialize;
 
 use crate::error::{ExperimentError, Result};
-use crate::evaluate::{Decision, EpisodeObserver};
+use crate::evaluate::{ActingStep, EpisodeObserver};
 use crate::protocol::{EvalTask, YAWS_DEG};
 
 pub use probe::{RIDGE_GRID, RidgeProbe, Samples, solve_spd};
@@ -131,7 +131,7 @@ impl DiagnosisRecorder {
 }
 
 impl EpisodeObserver for DiagnosisRecorder {
-    fn decision(&mut self, d: &Decision<'_>) -> Result<()> {
+    fn decision(&mut self, d: &ActingStep<'_>) -> Result<()> {
         let log_probs: Vec<f32> = d
             .log_probs
             .ok_or_else(|| ExperimentError::Diagnosis("needs sampled actions (log π), not the mode".into()))?

@@ -215,7 +215,7 @@ impl MeshBuilder {
 /// A contiguous index range of one object, with its bounding circle on the ground
 /// (for per-view culling).
 #[derive(Debug, Clone, Copy, PartialEq)]
-pub struct Part {
+pub struct DrawRange {
     /// First index.
     pub start: u32,
     /// One past the last index.
@@ -234,7 +234,7 @@ pub struct SceneMesh {
     pub indices: Vec<u32>,
     /// One part per obstacle, one per overhead detail, then the ground; together
     /// they cover `indices` in order.
-    pub parts: Vec<Part>,
+    pub parts: Vec<DrawRange>,
 }
 
 /// Build the full static mesh of a scene.
@@ -261,13 +261,13 @@ pub fn build(scene: &Scene, map: &RegionMap) -> SceneMesh {
             }
             Footprint::Cylinder { center, radius } => (center, radius.max(o.crown_radius)),
         };
-        parts.push(Part { start, end: m.indices.len() as u32, center, radius });
+        parts.push(DrawRange { start, end: m.indices.len() as u32, center, radius });
     }
     for o in &scene.overhead {
         let start = m.indices.len() as u32;
         m.cuboid(o.rect.min, o.rect.max, [o.base, o.top], o.shade, None);
         let (r, center) = (o.rect, [(o.rect.min[0] + o.rect.max[0]) * 0.5, (o.rect.min[1] + o.rect.max[1]) * 0.5]);
-        parts.push(Part { start, end: m.indices.len() as u32, center, radius: 0.5 * r.width().hypot(r.height()) });
+        parts.push(DrawRange { start, end: m.indices.len() as u32, center, radius: 0.5 * r.width().hypot(r.height()) });
     }
     let ground_start = m.indices.len() as u32;
     // Ground, drawn last so that early depth testing skips its (textured, costly)
@@ -283,7 +283,7 @@ pub fn build(scene: &Scene, map: &RegionMap) -> SceneMesh {
     let k = corners.map(|p| m.vertex([p[0], p[1], 0.0], [(p[0] - map.x0) / gw, (p[1] - map.y0) / gh], 1.0, 1.0));
     m.indices.extend_from_slice(&[k[0], k[1], k[2], k[0], k[2], k[3]]);
 
-    parts.push(Part { start: ground_start, end: m.indices.len() as u32, center: [0.0; 2], radius: f32::INFINITY });
+    parts.push(DrawRange { start: ground_start, end: m.indices.len() as u32, center: [0.0; 2], radius: f32::INFINITY });
     SceneMesh { vertices: m.vertices, indices: m.indices, parts }
 }
 
@@ -291,7 +291,7 @@ pub fn build(scene: &Scene, map: &RegionMap) -> SceneMesh {
 /// `fov` see any of the part's bounding cylinder? Conservative: a part counts as
 /// visible when its bounding circle touches the view wedge widened by 5°, or the
 /// camera stands within its circle (1 m of slack against the near plane).
-pub fn part_visible(part: &Part, x: f32, y: f32, yaw: f32, fov: f32) -> bool {
+pub fn part_visible(part: &DrawRange, x: f32, y: f32, yaw: f32, fov: f32) -> bool {
     if !part.radius.is_finite() {
         return true;
     }

@@ -129,7 +129,7 @@ pub struct Renderer {
     /// Indices of the scene; the six after them draw the sky quad.
     scene_indices: u32,
     /// Index ranges of the scene's objects, for per-view culling.
-    parts: Vec<mesh::Part>,
+    parts: Vec<mesh::DrawRange>,
     color_view: wgpu::TextureView,
     color: wgpu::Texture,
     depth_view: wgpu::TextureView,
