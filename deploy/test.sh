@@ -9,6 +9,8 @@ export CARGO_BUILD_JOBS="${CARGO_BUILD_JOBS:-2}"
 # The process binaries first: the end-to-end tests start them as a user would.
 cargo build --release --workspace --locked --bins
 cargo test --release --workspace --locked "$@"
+# The Gymnasium package (python/): built by maturin into a venv under target/, pytest.
+./deploy/test_python.sh
 # The CUDA build keeps compiling: `cargo check` with the `cuda` feature, nvcc from
 # PyPI (no GPU needed; ≈ 10–15 min on 2 cores from scratch, into target-cuda/).
 # PEDNAV_SKIP_CUDA_CHECK=1 skips it for a quick local run; CI always runs it.

@@ -1,0 +1,15 @@
+#!/usr/bin/env bash
+# The Python package's tests (python/tests, pytest): a virtual environment inside the
+# clone (target/python-venv, nothing cached outside it), the extension built in
+# release from this workspace by maturin (`pip install ./python`, which reuses the
+# workspace's target/ for the Rust dependencies), then pytest with numpy and Gymnasium
+# only — no PyTorch. Called by deploy/test.sh; runs alone as well.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+venv=target/python-venv
+if [[ ! -x "$venv/bin/python" ]]; then
+    python3 -m venv "$venv"
+fi
+"$venv/bin/python" -m pip install --quiet --upgrade pip
+"$venv/bin/python" -m pip install --quiet "./python[test]"
+"$venv/bin/python" -m pytest python/tests -q "$@"
