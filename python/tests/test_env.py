@@ -173,3 +173,18 @@ def test_a_constructor_seed_makes_the_first_unseeded_reset_reproducible() -> Non
     assert data_equivalence(first.reset(), second.reset(), exact=True)
     first.close()
     second.close()
+
+
+@pytest.mark.parametrize(
+    "action",
+    [np.zeros(2, np.float32), np.zeros((3, 2), np.float32), np.array(["fast", "left", "ahead"]), [0.0, 0.0, 0.0, 0.0]],
+    ids=["too-short", "wrong-shape", "strings", "too-long-list"],
+)
+def test_a_malformed_action_raises_and_the_episode_goes_on(action: object) -> None:
+    env = make(obs_mode="state")
+    env.reset(seed=0)
+    with pytest.raises(ValueError):
+        env.step(action)
+    _, _, terminated, truncated, info = env.step(np.zeros(3, np.float32))
+    assert info["step"] == 1, "the refused action took no step"
+    env.close()

@@ -174,3 +174,14 @@ def test_the_gil_is_released_while_rust_works() -> None:
     assert longest_pause < (ended - began) / 2, f"the thread paused {longest_pause:.3f} s of {ended - began:.3f} s"
     assert actions.shape == (2, 3) and actions.dtype == np.float32
     envs.close()
+
+
+def test_a_batch_of_actions_of_the_wrong_shape_raises_and_nothing_steps() -> None:
+    envs = make_vec(3, "vector_entry_point", **STATE)
+    envs.reset(seed=0)
+    for bad in (np.zeros((2, 3), np.float32), np.zeros(9, np.float32)[:8], np.full((3, 3), np.nan, np.float32)):
+        with pytest.raises(ValueError):
+            envs.step(bad)
+    _, _, _, _, infos = envs.step(np.zeros((3, 3), np.float32))
+    assert list(infos["step"]) == [1, 1, 1], "the refused batches took no step"
+    envs.close()
