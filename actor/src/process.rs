@@ -16,7 +16,7 @@ use anyhow::{Context, Result, bail};
 use candle_core::Device;
 use pednav_nets::DsacNets;
 use pednav_policy::{ActingPolicy, Sampling};
-use pednav_runtime::channels::{EpisodeReporter, StepPayload, StepWriter, TaskRequester};
+use pednav_runtime::channels::{EpisodeReporter, StepPayload, StepWriter, StreamId, TaskRequester};
 use pednav_runtime::columns::actor as col;
 use pednav_runtime::ipc::HeartbeatPublisher;
 use pednav_runtime::messages::{EpisodeHeader, EpisodePoint, Faults, Heartbeat, ProcessKind, StepFlags, StepHeader};
@@ -144,7 +144,13 @@ impl ActorProcess {
             Duration::from_secs_f64(cfg.runtime.give_up_secs),
             stop.clone(),
         )?;
-        let steps = StepWriter::open(&ipc, cfg.observation_bytes(), stop.clone())?;
+        let steps = StepWriter::open(
+            &ipc,
+            StreamId { actor: opts.actor, incarnation },
+            cfg.observation_bytes(),
+            cfg.runtime.resend_window(),
+            stop.clone(),
+        )?;
         let reports = EpisodeReporter::open(&ipc, cfg.sim.t_max as usize + 1, stop.clone())?;
         let tasks = TaskRequester::open(&ipc, Duration::from_secs_f64(cfg.runtime.task_timeout_secs), stop.clone())?;
         let weights = WeightsClient::open(&ipc)?;
@@ -260,7 +266,7 @@ impl ActorProcess {
                 flags: StepFlags::FIRST,
                 episode: ep.id,
                 policy_version: self.weights.version(),
-                seq: self.counters.steps,
+                seq: self.steps.next_seq(),
                 state: states[e],
                 ..StepHeader::default()
             };
@@ -319,7 +325,8 @@ impl ActorProcess {
                 reward: t.reward,
                 action: self.actions[e],
                 policy_version: self.weights.version(),
-                seq: self.counters.steps,
+                seq: self.steps.next_seq(),
+                base: 0, // the writer fills in its window's base
                 state: states[e],
             };
             let Some(bytes) = self.steps.send(header, observation(frames.as_ref(), &states, e))? else {
@@ -399,6 +406,8 @@ impl ActorProcess {
             recent_return: recent.unwrap_or(f32::NAN),
             rate: rate as f32,
             faults: self.health.faults(),
+            incarnation: self.incarnation,
+            stream_base: self.steps.base(),
             ..Heartbeat::default()
         });
         match self.dir.write_stats(&stats::actor_live(self.actor), &self.stats(ProcessStatus::Running)) {
@@ -429,6 +438,8 @@ impl ActorProcess {
             last_policy_version: versions.last().copied(),
             tasks_received: c.tasks,
             last_task_id: c.last_task_id,
+            records_resent: self.steps.resends().resent,
+            resend_requests: self.steps.resends().requests,
         }
     }
 

@@ -3,7 +3,8 @@
 //! curriculum service on the reduced smoke config.
 //!
 //! Checks: every step the actor sent reached the learner (count and checksum
-//! per actor incarnation, no sequence gaps); weights the learner published
+//! per actor incarnation, nothing out of order or twice; across a killed learner,
+//! its replacement has the stream to its end); weights the learner published
 //! reached the actor and were used; tasks came from the curriculum service; an
 //! actor, the learner and the curriculum service killed with SIGKILL are each
 //! restarted (the learner from its checkpoint, the curriculum service from its state)
@@ -61,8 +62,13 @@ fn actor_learner_curriculum_run_restart_and_resume() {
         .expect("the learner saw the replacement actor's stream");
     assert_eq!(tally.records, replacement.steps_sent, "learner records vs actor sends");
     assert_eq!(tally.checksum, replacement.checksum, "frame checksum");
+    assert_eq!(tally.first_seq, Some(0), "the stream reached the learner from its first record");
     for s in &final_learner.streams {
-        assert_eq!(s.gaps, 0, "no sequence gaps in {s:?}");
+        assert_eq!(
+            (s.out_of_order, s.duplicates, s.resumed),
+            (0, 0, 0),
+            "nothing out of order, twice or jumped over without a restart: {s:?}"
+        );
     }
     // The weights the actor used came from the learner's broadcasts (version = update count).
     let used = replacement.last_policy_version.unwrap_or(0);
@@ -111,6 +117,12 @@ fn actor_learner_curriculum_run_restart_and_resume() {
 
     // Phase 4: SIGKILL the learner, then the curriculum service: the launcher restarts
     // each from its checkpoint / saved state and training goes on.
+    // The actor's live stats of this launch (the file of the last launch may still be there).
+    let starts: u32 = std::fs::read_to_string(run_dir.join("stats/actor-0.starts")).unwrap().trim().parse().unwrap();
+    let crossing = wait_for(&run_dir, "the resumed actor's live stats", || {
+        actor(&run_dir, "actor-0.live").filter(|a| a.incarnation == starts && a.steps_sent > 0)
+    })
+    .incarnation;
     let learner_pid = resumed.pid as i32;
     // SAFETY: the pid is the learner process our run started.
     unsafe { libc::kill(learner_pid, libc::SIGKILL) };
@@ -131,6 +143,16 @@ fn actor_learner_curriculum_run_restart_and_resume() {
     });
     stop(&mut run, &run_dir);
     let after = curriculum(&run_dir).unwrap();
+    // The actor's stream that crossed the learner's restart: the restarted learner took
+    // one contiguous run of it to its very end — what the killed learner took without
+    // acknowledging was sent again (the sequence numbers and acknowledgements of
+    // `pednav_runtime::reliable`), nothing after it is missing.
+    let sender = actor(&run_dir, &format!("actor-0.{crossing}")).expect("the actor's final stats");
+    let taken = learner(&run_dir).unwrap();
+    let t = taken.streams.iter().find(|s| s.actor == 0 && s.incarnation == crossing).expect("the stream");
+    let first = t.first_seq.expect("the restarted learner took records of the stream");
+    assert_eq!(first + t.records, sender.steps_sent, "the restarted learner has the stream to its end: {t:?}");
+    assert!(first > 0, "the stream began before the restart: {t:?}");
     assert!(after.episodes >= first_curriculum.episodes, "curriculum counters carried over");
 }
 

@@ -328,6 +328,17 @@ impl DualReplay {
         Ok(true)
     }
 
+    /// End the open episodes of the streams `cut` picks: their next steps are dropped
+    /// until each stream's next first step, as for a stream whose start was never
+    /// seen. For a stream whose records jumped (records taken by another learner
+    /// before this one): no transition may link the steps on either side of the jump.
+    /// Returns how many open episodes were cut.
+    pub fn cut_streams(&mut self, mut cut: impl FnMut(u64) -> bool) -> usize {
+        let before = self.streams.len();
+        self.streams.retain(|&stream, _| !cut(stream));
+        before - self.streams.len()
+    }
+
     /// The `len` steps ending at `g` (times t_g + 1 − len … t_g), `None` before the
     /// episode start; `None` overall if any present step is overwritten.
     fn sequence(&self, g: u64, len: usize) -> Option<Sequence> {
@@ -562,5 +573,30 @@ mod tests {
         let fp = ReplayFootprint::new(FrameKind::Pixels { size: 84 }, 16, 1, 0);
         assert_eq!(fp.ring_step, 7056 + 8 + 12 + 4 + 1);
         assert_eq!(fp.terminal_entry, 17 * 7056 + 16 * (12 + 4));
+    }
+
+    /// A cut stream stores nothing until its next first step; other streams go on.
+    #[test]
+    fn a_cut_stream_waits_for_its_next_episode() {
+        let cfg = ReplayConfig { nonterminal_capacity: 16, terminal_capacity: 4 };
+        let mut r = DualReplay::new(&cfg, FrameKind::State { dim: 2 }, 1, &Device::Cpu).unwrap();
+        let state = [0.0f32; 2];
+        let step = |stream, first| Step {
+            stream,
+            first,
+            frame: Frame::State(&state),
+            action: [0.0; ACTION_DIM],
+            reward: -1.0,
+            terminal: false,
+            state_target: None,
+        };
+        for stream in [1, 2, 3] {
+            assert!(r.push(&step(stream, true)).unwrap());
+        }
+        assert_eq!(r.cut_streams(|s| s >= 2), 2);
+        assert!(r.push(&step(1, false)).unwrap(), "an uncut stream goes on");
+        assert!(!r.push(&step(2, false)).unwrap(), "no transition spans the cut");
+        assert!(r.push(&step(2, true)).unwrap());
+        assert!(r.push(&step(2, false)).unwrap(), "the next episode is stored");
     }
 }

@@ -8,14 +8,17 @@
 //! lost: each end waits for its subscriber first); a step record's observation is
 //! written straight into the loaned shared-memory sample and always in full (a frame
 //! or a state vector of exactly the record's size — checked, never assumed); a stop
-//! request ends every wait and makes a failed send a clean `None`/`false`.
+//! request ends every wait and makes a failed send a clean `None`/`false`; a step
+//! record stays with its writer until a learner acknowledges it, so a learner that
+//! restarts is sent again what its predecessor took but never acknowledged.
 
 use std::mem::MaybeUninit;
 use std::time::{Duration, Instant};
 
 use crate::error::{Result, RuntimeError};
-use crate::ipc::{EpisodeSender, StepSender, TaskClient};
+use crate::ipc::{AckSubscriber, EpisodeSender, StepSender, TaskClient};
 use crate::messages::{EpisodeHeader, EpisodePoint, StepHeader, TaskRequest, TaskResponse, state_payload};
+use crate::reliable::SendWindow;
 use crate::{Ipc, StopFlag};
 
 /// How long an actor waits for a learner or curriculum service that is gone
@@ -54,17 +57,61 @@ impl StepPayload<'_> {
     }
 }
 
-/// An actor's step stream to the learner.
+/// Which step stream a [`StepWriter`] writes: one actor incarnation's.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct StreamId {
+    /// Actor id.
+    pub actor: u32,
+    /// The actor's incarnation (1 for its first start).
+    pub incarnation: u32,
+}
+
+/// A record the writer holds until the learner acknowledges it.
+struct Held {
+    header: StepHeader,
+    bytes: Vec<u8>,
+}
+
+/// What a [`StepWriter`] did beyond sending each record once.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct ResendCounts {
+    /// Records sent again because a learner asked (a restarted learner, a cut link).
+    pub resent: u64,
+    /// Times a learner asked.
+    pub requests: u64,
+}
+
+/// An actor's step stream to the learner, lossless across a restarted learner: it
+/// numbers records, keeps each until the learner acknowledges it, and sends again
+/// what a learner asks for ([`crate::reliable`]). A full window makes it wait, as a
+/// full learner queue does.
 pub struct StepWriter {
     sender: StepSender,
+    acks: AckSubscriber,
+    window: SendWindow<Held>,
+    stream: StreamId,
     record_bytes: usize,
+    give_up: Duration,
     stop: StopFlag,
+    counts: ResendCounts,
+    refused_ack_logged: bool,
 }
 
 impl StepWriter {
-    /// The writer for records of `record_bytes` observation bytes.
-    pub fn open(ipc: &Ipc, record_bytes: usize, stop: StopFlag) -> Result<StepWriter> {
-        Ok(StepWriter { sender: ipc.step_sender(record_bytes)?, record_bytes, stop })
+    /// The writer of `stream`, for records of `record_bytes` observation bytes,
+    /// holding at most `window` unacknowledged records.
+    pub fn open(ipc: &Ipc, stream: StreamId, record_bytes: usize, window: usize, stop: StopFlag) -> Result<StepWriter> {
+        Ok(StepWriter {
+            sender: ipc.step_sender(record_bytes)?,
+            acks: ipc.ack_subscriber()?,
+            window: SendWindow::new(window.max(1)),
+            stream,
+            record_bytes,
+            give_up: ipc.give_up,
+            stop,
+            counts: ResendCounts::default(),
+            refused_ack_logged: false,
+        })
     }
 
     /// Wait until the learner is subscribed (or stop, or `timeout`); returns whether it is.
@@ -72,15 +119,51 @@ impl StepWriter {
         self.sender.wait_for_subscriber(&self.stop, timeout)
     }
 
-    /// Send one record: loan a sample, write `observation` into it, send. Returns a
-    /// copy of the observation bytes (for the policy cache, whose window keeps its
-    /// own), or `None` when stopping.
-    pub fn send(&self, header: StepHeader, observation: StepPayload<'_>) -> Result<Option<Vec<u8>>> {
+    /// The sequence number the next record must carry (= records numbered so far).
+    pub fn next_seq(&self) -> u64 {
+        self.window.next_seq()
+    }
+
+    /// The oldest record not yet acknowledged (every one below it was).
+    pub fn base(&self) -> u64 {
+        self.window.base()
+    }
+
+    /// Records held for a resend (sent, not yet acknowledged).
+    pub fn held(&self) -> usize {
+        self.window.held()
+    }
+
+    /// What was sent again so far.
+    pub fn resends(&self) -> ResendCounts {
+        self.counts
+    }
+
+    /// Send one record: wait for room in the window, send what a learner asked for
+    /// again, then loan a sample, write `observation` into it and send it. The header's
+    /// stream and sequence number must be this writer's ([`StepWriter::next_seq`]);
+    /// its `base` is filled in. Returns a copy of the observation bytes (for the policy
+    /// cache, whose window keeps its own), or `None` when stopping.
+    pub fn send(&mut self, mut header: StepHeader, observation: StepPayload<'_>) -> Result<Option<Vec<u8>>> {
         if observation.bytes() != self.record_bytes {
             return Err(RuntimeError::Message(format!(
                 "an observation of {} bytes for step records of {}: the actor's config differs from the run's",
                 observation.bytes(),
                 self.record_bytes
+            )));
+        }
+        if (header.actor, header.incarnation, header.seq)
+            != (self.stream.actor, self.stream.incarnation, self.window.next_seq())
+        {
+            return Err(RuntimeError::Message(format!(
+                "step record (actor {}, incarnation {}, seq {}) on the stream of actor {}, incarnation {}, whose next \
+                 record is {}",
+                header.actor,
+                header.incarnation,
+                header.seq,
+                self.stream.actor,
+                self.stream.incarnation,
+                self.window.next_seq()
             )));
         }
         if self.sender.subscribers() == 0 {
@@ -89,6 +172,10 @@ impl StepWriter {
                 return Ok(None);
             }
         }
+        if !self.make_room()? || !self.send_requested()? {
+            return Ok(None);
+        }
+        header.base = self.window.base();
         let mut sample = self
             .sender
             .publisher
@@ -101,6 +188,12 @@ impl StepWriter {
         // their whole destination (they assert its length).
         let sample = unsafe { sample.assume_init() };
         let bytes = sample.payload().to_vec();
+        let held = Held { header, bytes: bytes.clone() };
+        if self.window.push(held).is_err() {
+            unreachable!("make_room left room in the window");
+        }
+        let sent = self.window.take_next().map(|o| o.seq);
+        debug_assert_eq!(sent, Some(header.seq), "the new record is the next to transmit");
         match sample.send() {
             Ok(_) => Ok(Some(bytes)),
             Err(_) if self.stop.is_set() => Ok(None),
@@ -108,6 +201,84 @@ impl StepWriter {
                 "step record not delivered (learner stalled beyond runtime.give_up_secs?): {e:?}"
             ))),
         }
+    }
+
+    /// Apply the learner's newest acknowledgement of this stream, if there is one.
+    fn apply_acks(&mut self) -> Result<()> {
+        let mut newest = None;
+        loop {
+            match self.acks.receive() {
+                Ok(Some(table)) => newest = Some(table.payload().streams[self.stream.actor as usize]),
+                Ok(None) => break,
+                Err(e) => return Err(RuntimeError::Ipc(format!("ack subscriber: {e:?}"))),
+            }
+        }
+        let Some(entry) = newest.filter(|e| e.incarnation == self.stream.incarnation) else { return Ok(()) };
+        match self.window.on_ack(entry.ack) {
+            Ok(effect) if effect.rewound => {
+                self.counts.requests += 1;
+                tracing::info!(
+                    from = entry.ack.expected.max(self.window.base()),
+                    up_to = self.window.next_seq(),
+                    "the learner asked for step records again (it restarted, or records were lost on the way)"
+                );
+            }
+            Ok(_) => {}
+            Err(e) if !self.refused_ack_logged => {
+                self.refused_ack_logged = true;
+                tracing::warn!(error = %e, "an acknowledgement was refused (logged once)");
+            }
+            Err(_) => {}
+        }
+        Ok(())
+    }
+
+    /// Wait until the window has room for one more record, sending again what a
+    /// learner asks for meanwhile. `false` when stopping; an error after
+    /// `runtime.give_up_secs` without room.
+    fn make_room(&mut self) -> Result<bool> {
+        let started = Instant::now();
+        loop {
+            self.apply_acks()?;
+            if self.window.has_room() {
+                return Ok(true);
+            }
+            if self.stop.is_set() {
+                return Ok(false);
+            }
+            if started.elapsed() > self.give_up {
+                return Err(RuntimeError::Timeout(format!(
+                    "no learner acknowledged any of the last {} step records within runtime.give_up_secs = {:?}",
+                    self.window.held(),
+                    self.give_up
+                )));
+            }
+            if !self.send_requested()? {
+                return Ok(false);
+            }
+            std::thread::sleep(Duration::from_micros(200));
+        }
+    }
+
+    /// Send again, in order, every held record a learner asked for. `false` when stopping.
+    fn send_requested(&mut self) -> Result<bool> {
+        while let Some(o) = self.window.take_next() {
+            let mut header = o.record.header;
+            header.base = o.base;
+            let mut sample = self
+                .sender
+                .publisher
+                .loan_slice_uninit(self.record_bytes)
+                .map_err(|e| RuntimeError::Ipc(format!("loan step record: {e:?}")))?;
+            *sample.user_header_mut() = header;
+            let sample = sample.write_from_slice(&o.record.bytes);
+            match sample.send() {
+                Ok(_) => self.counts.resent += 1,
+                Err(_) if self.stop.is_set() => return Ok(false),
+                Err(e) => return Err(RuntimeError::Ipc(format!("step record not sent again: {e:?}"))),
+            }
+        }
+        Ok(true)
     }
 }
 

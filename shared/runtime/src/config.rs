@@ -50,7 +50,9 @@ pub struct RuntimeConfig {
     pub curriculum_save_every_episodes: u64,
     /// Write a metrics row (CSV + TensorBoard) every this many seconds, and a last one at stop.
     pub metrics_every_secs: f64,
-    /// Step records the learner's subscriber buffers before actors wait.
+    /// Step records the learner's subscriber buffers before actors wait. Each actor
+    /// also holds twice this many records until the learner acknowledges them, to send
+    /// them again to a learner that restarts ([`RuntimeConfig::resend_window`]).
     pub step_buffer: usize,
     /// Seconds a lossless publisher (steps, episode reports) keeps retrying a full
     /// receiver before it gives up and the process exits with an error.
@@ -71,6 +73,15 @@ pub struct RuntimeConfig {
     /// (after its first; they send one every `metrics_every_secs`) is treated as dead:
     /// the launcher kills it and restarts it from its checkpoint or state.
     pub hang_secs: f64,
+}
+
+impl RuntimeConfig {
+    /// Step records an actor holds until the learner acknowledges them: twice what
+    /// the learner's queue holds, so the queue (not this window) is what makes an
+    /// actor wait in normal running.
+    pub fn resend_window(&self) -> usize {
+        2 * self.step_buffer
+    }
 }
 
 impl Default for RuntimeConfig {

@@ -10,8 +10,9 @@
 //!   learner cannot wedge an actor forever;
 //! - the learner's intake is fair across actors ([`receive_step_round`]): no
 //!   actor waits on its full queue while another's is served;
-//! - weights and heartbeats are lossy by design (newest wins; history 1 for
-//!   weights so an actor that starts late still gets the current version).
+//! - weights, acknowledgements and heartbeats are lossy by design (newest wins;
+//!   history 1 for weights and acknowledgements so a process that starts late still
+//!   gets the current ones).
 //!
 //! Every service is opened with the same settings by every process (an opener
 //! with different settings would be refused by iceoryx2), which is why they are
@@ -29,7 +30,9 @@ use iceoryx2::port::{BackpressureAction, BackpressureInfo};
 use iceoryx2::prelude::*;
 
 use crate::error::{Result, RuntimeError};
-use crate::messages::{EpisodeHeader, EpisodePoint, Heartbeat, StepHeader, TaskRequest, TaskResponse, WeightsHeader};
+use crate::messages::{
+    AckTable, EpisodeHeader, EpisodePoint, Heartbeat, StepHeader, TaskRequest, TaskResponse, WeightsHeader,
+};
 use crate::signal::StopFlag;
 
 /// Step-record publisher (actor side).
@@ -52,6 +55,11 @@ pub type WeightsSubscriber = Subscriber<ipc::Service, [f32], WeightsHeader>;
 pub type HeartbeatPublisher = Publisher<ipc::Service, Heartbeat, ()>;
 /// Heartbeat subscriber (the launcher's progress line, tests).
 pub type HeartbeatSubscriber = Subscriber<ipc::Service, Heartbeat, ()>;
+
+/// The learner's acknowledgements publisher.
+pub type AckPublisher = Publisher<ipc::Service, AckTable, ()>;
+/// An actor's view of the learner's acknowledgements.
+pub type AckSubscriber = Subscriber<ipc::Service, AckTable, ()>;
 
 /// A received step record, borrowed from the sending actor's shared memory until dropped.
 pub type StepSample = iceoryx2::sample::Sample<ipc::Service, [u8], StepHeader>;
@@ -332,6 +340,32 @@ impl Ipc {
         self.weights_service()?.subscriber_builder().create().map_err(|e| ipc_err("weights subscriber", e))
     }
 
+    fn ack_service(
+        &self,
+    ) -> Result<iceoryx2::service::port_factory::publish_subscribe::PortFactory<ipc::Service, AckTable, ()>> {
+        self.node
+            .service_builder(&service_name("pednav/acks")?)
+            .publish_subscribe::<AckTable>()
+            .enable_safe_overflow(true)
+            .history_size(1)
+            .subscriber_max_buffer_size(1)
+            .max_publishers(2)
+            .max_subscribers(MAX_ACTORS + 2)
+            .max_nodes(MAX_ACTORS + 4)
+            .open_or_create()
+            .map_err(|e| ipc_err("ack service", e))
+    }
+
+    /// The learner's acknowledgements publisher.
+    pub fn ack_publisher(&self) -> Result<AckPublisher> {
+        self.ack_service()?.publisher_builder().create().map_err(|e| ipc_err("ack publisher", e))
+    }
+
+    /// An actor's subscriber to the learner's acknowledgements.
+    pub fn ack_subscriber(&self) -> Result<AckSubscriber> {
+        self.ack_service()?.subscriber_builder().create().map_err(|e| ipc_err("ack subscriber", e))
+    }
+
     fn heartbeat_service(
         &self,
     ) -> Result<iceoryx2::service::port_factory::publish_subscribe::PortFactory<ipc::Service, Heartbeat, ()>> {
@@ -342,7 +376,7 @@ impl Ipc {
             .subscriber_max_buffer_size(256)
             .history_size(0)
             .max_publishers(MAX_ACTORS + 2)
-            .max_subscribers(4)
+            .max_subscribers(8)
             .max_nodes(MAX_ACTORS + 4)
             .open_or_create()
             .map_err(|e| ipc_err("heartbeat service", e))

@@ -13,6 +13,8 @@
 //!   that survive a kill or a full disk at any step;
 //! - [`metrics`]: CSV + TensorBoard scalars, whose columns [`columns`] names once;
 //! - [`weights`]: the flat weights message;
+//! - [`reliable`]: sequence numbers, acknowledgements and resends that make a step
+//!   stream lossless across a restarted learner (and, later, a cut link);
 //! - [`signal`]: Ctrl-C / SIGTERM as a flag;
 //! - [`stats`]: the stats files each process writes and the soak and tests read;
 //! - [`write_health`]: writes that failed (a full disk), logged once per interval and
@@ -31,6 +33,7 @@ pub mod log_health;
 pub mod memory;
 pub mod messages;
 pub mod metrics;
+pub mod reliable;
 pub mod rundir;
 pub mod signal;
 pub mod stats;

@@ -401,13 +401,21 @@ impl RunConfig {
         });
 
         // The step stream: each actor's publisher segment holds, per subscriber (2),
-        // its queue and borrowed samples, plus the loaned ones.
+        // its queue and borrowed samples, plus the loaned ones; and the actor keeps
+        // the records no learner has acknowledged yet (its resend window).
         let record = (self.observation_bytes() + std::mem::size_of::<StepHeader>()) as u128;
-        let samples = (2 * (self.runtime.step_buffer + STEP_ROUND_PER_ACTOR) + 4) as u128;
+        let samples =
+            (2 * (self.runtime.step_buffer + STEP_ROUND_PER_ACTOR) + 4 + self.runtime.resend_window()) as u128;
         items.push(MemoryItem {
             part: MemoryPart::StepStream,
-            what: "step stream (shared memory)",
-            how: format!("{} actors × {} records × {} B", plan.actors, group(samples), group(record)),
+            what: "step stream (shared memory, resend window)",
+            how: format!(
+                "{} actors × ({} queued + {} held for a resend) records × {} B",
+                plan.actors,
+                group(2 * (self.runtime.step_buffer + STEP_ROUND_PER_ACTOR) as u128 + 4),
+                group(self.runtime.resend_window() as u128),
+                group(record)
+            ),
             fields: format!("runtime.step_buffer = {}", self.runtime.step_buffer),
             bytes: plan.actors as u128 * samples * record,
             on_host: true,

@@ -8,6 +8,9 @@
 
 use iceoryx2::prelude::ZeroCopySend;
 
+use crate::ipc::MAX_ACTORS;
+use crate::reliable::Ack;
+
 /// `contains` and `with` of a `u32` bit-set newtype: the one rule of the wire's flag types.
 macro_rules! bit_set {
     ($t:ident) => {
@@ -121,8 +124,13 @@ pub struct StepHeader {
     pub action: [f32; 3],
     /// Weights version the action was computed with (0: the initial weights).
     pub policy_version: u64,
-    /// Running sequence number of records sent by this actor incarnation.
+    /// Running sequence number of records sent by this actor incarnation (0, 1, 2, …;
+    /// a resent record keeps its number).
     pub seq: u64,
+    /// The oldest sequence number the actor still holds to send again: every record
+    /// below it was acknowledged by a learner. A learner that has not seen this stream
+    /// (a restarted one) starts here ([`crate::reliable`]).
+    pub base: u64,
     /// The simulator's state vector at the new observation
     /// ([`pednav_sim::state_obs::state_observation`]) when the learner uses it as the
     /// target of the state-prediction auxiliary loss (`dsac.state_aux_weight` > 0) or
@@ -151,6 +159,12 @@ impl StepHeader {
     /// The replay stream this record belongs to: one per (actor, env, incarnation).
     pub fn stream(&self) -> u64 {
         ((self.actor as u64) << 40) | ((self.incarnation as u64 & 0xFF_FFFF) << 16) | (self.env as u64 & 0xFFFF)
+    }
+
+    /// Whether the replay stream `stream` ([`StepHeader::stream`]) is one of this
+    /// record's actor incarnation (any of its envs).
+    pub fn same_actor_incarnation(&self, stream: u64) -> bool {
+        stream >> 16 == self.stream() >> 16
     }
 }
 
@@ -232,6 +246,33 @@ pub struct WeightsHeader {
     pub published_ns: u64,
 }
 
+/// One actor's entry in the learner's [`AckTable`].
+#[repr(C)]
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, ZeroCopySend)]
+pub struct StreamAck {
+    /// The actor incarnation the acknowledgement is for (0: none seen yet; incarnations
+    /// start at 1).
+    pub incarnation: u32,
+    /// The learner's acknowledgement of that incarnation's step stream.
+    pub ack: Ack,
+}
+
+/// The learner's acknowledgements of every actor's step stream, indexed by actor id
+/// (an actor's newest incarnation). Newest wins: each table replaces the last, so it
+/// travels on a lossy service ([`crate::reliable`] explains why that is enough).
+#[repr(C)]
+#[derive(Debug, Clone, Copy, PartialEq, ZeroCopySend)]
+pub struct AckTable {
+    /// Entry `k` is actor `k`'s.
+    pub streams: [StreamAck; MAX_ACTORS],
+}
+
+impl Default for AckTable {
+    fn default() -> Self {
+        AckTable { streams: [StreamAck::default(); MAX_ACTORS] }
+    }
+}
+
 /// Kind of process a [`Heartbeat`] comes from (the code is the wire format).
 #[repr(C)]
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Hash, PartialOrd, Ord, ZeroCopySend)]
@@ -277,6 +318,12 @@ pub struct Heartbeat {
     pub rate: f32,
     /// Writes the process could not make at its last attempt.
     pub faults: Faults,
+    /// The process's incarnation (an actor's start counter; 0 for the others). With
+    /// `stream_base` and `env_steps` it announces what an actor's step stream holds,
+    /// so a learner can ask again for records lost at its end ([`crate::reliable`]).
+    pub incarnation: u32,
+    /// An actor's oldest step record not yet acknowledged by a learner (0 for the others).
+    pub stream_base: u64,
 }
 
 /// Writes a process could not make (a full disk, a folder made read-only), as bits:

@@ -99,9 +99,18 @@ pub struct ActorStats {
     pub tasks_received: u64,
     /// The last task's id.
     pub last_task_id: u64,
+    /// Step records sent again because a learner asked (it restarted, or records were
+    /// lost on the way); they count once in `steps_sent` and `checksum`.
+    pub records_resent: u64,
+    /// Times a learner asked.
+    pub resend_requests: u64,
 }
 
-/// One actor incarnation's stream as one learner process received it.
+/// One actor incarnation's stream as one learner process received it. The records a
+/// learner takes from a stream are one contiguous run of sequence numbers,
+/// `first_seq .. first_seq + records` ([`crate::reliable`]), unless `resumed` > 0 (it
+/// jumped over records a learner before it took); a learner that replaced a killed
+/// one may start below where its predecessor ended (records sent again).
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct StreamTally {
@@ -109,12 +118,21 @@ pub struct StreamTally {
     pub actor: u32,
     /// The actor's incarnation.
     pub incarnation: u32,
+    /// Sequence number of the first record taken (`None`: none taken yet).
+    pub first_seq: Option<u64>,
     /// Records taken.
     pub records: u64,
     /// Wrapping sum of their CRC-32s.
     pub checksum: u32,
-    /// Sequence gaps seen.
-    pub gaps: u64,
+    /// Records dropped because records before them were missing (they were asked for
+    /// again); 0 on a stream that crossed no learner restart.
+    pub out_of_order: u64,
+    /// Records dropped because they had been taken already (sent again).
+    pub duplicates: u64,
+    /// Jumps over records a learner before this one took ([`crate::reliable::Verdict::Resume`]):
+    /// 0 on one machine, where an acknowledgement reaches the actor before its next record.
+    #[serde(default)]
+    pub resumed: u64,
 }
 
 /// The learner process.
@@ -197,7 +215,16 @@ mod tests {
             received_this_process: 320,
             received_total: 320,
             limiter: LimiterCounters { warmup: 100, interval: 8, slack: 4, inserted: 320, updates: 40 },
-            streams: vec![StreamTally { actor: 0, incarnation: 1, records: 320, checksum: 99, gaps: 0 }],
+            streams: vec![StreamTally {
+                actor: 0,
+                incarnation: 1,
+                first_seq: Some(0),
+                records: 320,
+                checksum: 99,
+                out_of_order: 0,
+                duplicates: 0,
+                resumed: 0,
+            }],
         };
         dir.write_stats("learner", &learner).unwrap();
         assert_eq!(dir.read_stats::<LearnerStats>("learner").unwrap(), Some(learner));

@@ -15,40 +15,43 @@ pub struct Sent {
     pub exact: bool,
 }
 
-/// One learner process's count of one stream.
+/// One learner process's count of one stream: the records it took are the contiguous
+/// sequence numbers `first .. first + records` (its cursor takes nothing out of order).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Received {
+    /// The first record's sequence number (`None`: it took none).
+    pub first: Option<u64>,
     /// Records it took.
     pub records: u64,
     /// The CRC-32 sum of those records.
     pub checksum: u32,
-    /// Sequence gaps it saw.
-    pub gaps: u64,
 }
 
 /// The accounting of one actor incarnation's stream.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub enum Verdict {
-    /// Everything sent arrived: count and checksum equal, no gaps.
+    /// Everything sent arrived once: count and checksum equal.
     Whole,
+    /// Everything sent arrived; this many records twice, at two learner processes (a
+    /// learner that replaced a killed one is sent again what its predecessor took but
+    /// had not acknowledged). The checksums of overlapping counts are not comparable.
+    WholeResent(u64),
     /// The sender was killed: at least everything it last reported sending arrived
     /// (what it sent after that report is not known).
     SenderKilled,
     /// The stream crossed a learner restart and this many records died with the
-    /// killed learner (taken after its last stats write, or in its queue).
+    /// killed learner (taken and acknowledged after its last stats write).
     DiedWithLearner(u64),
     /// As [`Verdict::DiedWithLearner`], for a killed sender: at least this many (what
     /// it sent after its last report is not known).
     DiedWithLearnerAtLeast(u64),
     /// Records missing at the learner that no learner restart explains (beyond what
-    /// the killed learners could have held).
+    /// the killed learners could have taken after their last stats write).
     Lost(u64),
     /// As many records arrived as were sent, with another checksum.
     ChecksumMismatch,
-    /// More records counted than sent.
+    /// Records counted beyond the last one sent.
     Excess(u64),
-    /// A learner saw sequence gaps inside the stream.
-    Gaps(u64),
     /// No stats of the sender.
     Unknown,
 }
@@ -72,30 +75,30 @@ impl Verdict {
 
     /// Whether this is a failure of the soak.
     pub fn failed(self) -> bool {
-        matches!(self, Verdict::Lost(_) | Verdict::ChecksumMismatch | Verdict::Excess(_) | Verdict::Gaps(_))
+        matches!(self, Verdict::Lost(_) | Verdict::ChecksumMismatch | Verdict::Excess(_))
     }
 
     pub(super) fn text(self) -> String {
         match self {
             Verdict::Whole => "0 — whole (count and checksum)".into(),
+            Verdict::WholeResent(n) => format!("0 — whole; {n} sent again to the restarted learner"),
             Verdict::SenderKilled => "0 — sender killed: all it last reported arrived".into(),
             Verdict::DiedWithLearner(n) => format!("{n} died with the killed learner"),
             Verdict::DiedWithLearnerAtLeast(n) => format!("≥ {n} died with the killed learner (sender killed)"),
             Verdict::Lost(n) => format!("**{n} LOST**"),
             Verdict::ChecksumMismatch => "**checksum mismatch**".into(),
             Verdict::Excess(n) => format!("**{n} more counted than sent**"),
-            Verdict::Gaps(n) => format!("**{n} sequence gaps**"),
             Verdict::Unknown => "? (no sender stats)".into(),
         }
     }
 }
 
-/// What one killed learner may take with it from one actor's stream: its intake queue
-/// (`step_buffer` records, plus a round's [`STEP_ROUND_PER_ACTOR`]) and what it could
-/// take after its last stats write — 1.5 × its intake rate (all actors') × the time
-/// since that write as polled, plus one poll interval.
-pub fn died_allowance(step_buffer: u64, intake_per_s: f64, stats_age_s: f64) -> u64 {
-    step_buffer + STEP_ROUND_PER_ACTOR as u64 + (1.5 * intake_per_s * (stats_age_s + POLL.as_secs_f64())).ceil() as u64
+/// What one killed learner may take with it from one actor's stream: the records it
+/// took and acknowledged after its last stats write — 1.5 × its intake rate (all
+/// actors') × the time since that write as polled, plus one poll interval. (Its intake
+/// queue is not lost: the actors hold what it did not acknowledge and send it again.)
+pub fn died_allowance(intake_per_s: f64, stats_age_s: f64) -> u64 {
+    (1.5 * intake_per_s * (stats_age_s + POLL.as_secs_f64())).ceil() as u64
 }
 
 /// The intake rate (env steps/s) of learner `pid` over its last ≥ 3 s of stats before
@@ -113,24 +116,33 @@ pub(super) fn intake_before(points: &[LearnerPoint], pid: u64, at: f64) -> Optio
 /// no learner restart, else how many of its records may have died with the killed
 /// learners ([`died_allowance`], summed over the restarts it crossed).
 pub fn account(sent: Option<Sent>, received: &[Received], died_allowance: Option<u64>) -> Verdict {
-    let gaps: u64 = received.iter().map(|r| r.gaps).sum();
-    if gaps > 0 {
-        return Verdict::Gaps(gaps);
-    }
-    let records: u64 = received.iter().map(|r| r.records).sum();
-    let checksum = received.iter().fold(0u32, |c, r| c.wrapping_add(r.checksum));
     let Some(sent) = sent else { return Verdict::Unknown };
-    if records > sent.steps && sent.exact {
-        return Verdict::Excess(records - sent.steps);
+    let mut spans: Vec<(u64, u64)> =
+        received.iter().filter_map(|r| r.first.map(|f| (f, f + r.records))).filter(|(a, b)| b > a).collect();
+    spans.sort_unstable();
+    let end = spans.iter().map(|s| s.1).max().unwrap_or(0);
+    if sent.exact && end > sent.steps {
+        return Verdict::Excess(end - sent.steps);
     }
-    if records >= sent.steps {
-        return match (sent.exact, checksum == sent.checksum) {
-            (true, true) => Verdict::Whole,
-            (true, false) => Verdict::ChecksumMismatch,
-            (false, _) => Verdict::SenderKilled,
-        };
+    // Walk the spans in order: what lies between them (below `sent.steps`) is missing,
+    // what two of them share arrived twice.
+    let (mut reach, mut missing, mut twice) = (0u64, 0u64, 0u64);
+    for &(a, b) in &spans {
+        missing += a.min(sent.steps).saturating_sub(reach);
+        twice += reach.min(b).saturating_sub(a);
+        reach = reach.max(b);
     }
-    let missing = sent.steps - records;
+    missing += sent.steps.saturating_sub(reach);
+    if missing == 0 {
+        if !sent.exact {
+            return Verdict::SenderKilled;
+        }
+        if twice > 0 {
+            return Verdict::WholeResent(twice);
+        }
+        let checksum = received.iter().fold(0u32, |c, r| c.wrapping_add(r.checksum));
+        return if checksum == sent.checksum { Verdict::Whole } else { Verdict::ChecksumMismatch };
+    }
     match died_allowance {
         Some(a) if missing <= a && sent.exact => Verdict::DiedWithLearner(missing),
         Some(a) if missing <= a => Verdict::DiedWithLearnerAtLeast(missing),

@@ -35,17 +35,17 @@
 //!   runtime.rs`) per actor incarnation: what it sent (`stats/actor-K.I.json`, written
 //!   on a clean stop: exact; a killed incarnation's last `actor-K.live.json`: a lower
 //!   bound) against what every learner process counted for it (`streams` of
-//!   `stats/learner.json`: records, CRC-32 sum, sequence gaps; the final learner's
-//!   exact, a killed learner's as last written). A stream that did not cross a learner
-//!   restart must arrive whole — count and checksum equal, no gaps — and anything
-//!   missing is **lost on the learner's side** (must be 0). A stream that crossed one
-//!   may miss what died with that learner: the records it took after its last stats
-//!   write (into the replay, which is not checkpointed) and those waiting in its
-//!   intake queue (`runtime.step_buffer` per actor) — the loss the README documents
-//!   for a learner restart (it resumes from its last checkpoint with an empty replay
-//!   and refills `dsac.warmup` steps before updating again). That is allowed up to
-//!   [`died_allowance`] per killed learner (the queue, plus 1.5 × the learner's intake
-//!   rate over the time since its last stats write); anything beyond counts as lost.
+//!   `stats/learner.json`: the first sequence number, records and CRC-32 sum of one
+//!   contiguous run; the final learner's exact, a killed learner's as last written).
+//!   A stream that did not cross a learner restart must arrive whole — count and
+//!   checksum equal — and anything missing is **lost on the learner's side** (must be
+//!   0). Across a learner restart the actors send the new learner again what the killed
+//!   one took without acknowledging (its intake queue included), so what a crossing
+//!   stream may miss is only what the killed learner took *and acknowledged* after its
+//!   last stats write (into the replay, which is not checkpointed; the learner resumes
+//!   from its last checkpoint and refills `dsac.warmup` steps before updating again).
+//!   That is allowed up to [`died_allowance`] per killed learner (1.5 × its intake rate
+//!   over the time since its last stats write); anything beyond counts as lost.
 //!   The report gives it separately, with each learner restart's rollback to its
 //!   checkpoint.
 //!
@@ -68,7 +68,6 @@ use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result, bail};
 use clap::Args;
-use pednav_runtime::ipc::STEP_ROUND_PER_ACTOR;
 use pednav_runtime::stats::{self, ActorStats, LearnerStats, ProcessStatus};
 use pednav_runtime::{RunConfig, RunDir, StopFlag, columns};
 use rand_chacha::ChaCha8Rng;
@@ -621,30 +620,39 @@ mod tests {
     #[test]
     fn streams_are_accounted_as_the_end_to_end_test_does() {
         let sent = |steps, checksum, exact| Some(Sent { steps, checksum, exact });
-        let rec = |records, checksum, gaps| Received { records, checksum, gaps };
+        let rec = |first, records, checksum| Received { first: Some(first), records, checksum };
         // Whole, over one learner or split over two (checksums add, wrapping).
-        assert_eq!(account(sent(100, 7, true), &[rec(100, 7, 0)], None), Verdict::Whole);
-        assert_eq!(account(sent(100, 7, true), &[rec(60, u32::MAX, 0), rec(40, 8, 0)], Some(30)), Verdict::Whole);
-        assert_eq!(account(sent(100, 7, true), &[rec(100, 8, 0)], None), Verdict::ChecksumMismatch);
+        assert_eq!(account(sent(100, 7, true), &[rec(0, 100, 7)], None), Verdict::Whole);
+        assert_eq!(account(sent(100, 7, true), &[rec(0, 60, u32::MAX), rec(60, 40, 8)], Some(30)), Verdict::Whole);
+        assert_eq!(account(sent(100, 7, true), &[rec(0, 100, 8)], None), Verdict::ChecksumMismatch);
+        // A restarted learner sent again what the killed one took unacknowledged: whole,
+        // with the overlap counted (its checksums cannot be compared).
+        assert_eq!(account(sent(100, 7, true), &[rec(0, 70, 1), rec(55, 45, 2)], Some(0)), Verdict::WholeResent(15));
         // Missing records: lost, unless the stream crossed a learner restart and no
-        // more are missing than the killed learner could hold.
-        assert_eq!(account(sent(100, 7, true), &[rec(90, 1, 0)], None), Verdict::Lost(10));
+        // more are missing than the killed learner could have taken and acknowledged.
+        assert_eq!(account(sent(100, 7, true), &[rec(0, 90, 1)], None), Verdict::Lost(10));
         assert_eq!(
-            account(sent(100, 7, true), &[rec(50, 1, 0), rec(30, 2, 0)], Some(20)),
+            account(sent(100, 7, true), &[rec(0, 50, 1), rec(70, 30, 2)], Some(20)),
             Verdict::DiedWithLearner(20)
         );
-        assert_eq!(account(sent(100, 7, true), &[rec(50, 1, 0), rec(30, 2, 0)], Some(15)), Verdict::Lost(5));
-        assert_eq!(account(sent(100, 7, true), &[rec(101, 7, 0)], None), Verdict::Excess(1));
-        assert_eq!(account(sent(100, 7, true), &[rec(100, 7, 1)], None), Verdict::Gaps(1));
+        assert_eq!(account(sent(100, 7, true), &[rec(0, 50, 1), rec(70, 30, 2)], Some(15)), Verdict::Lost(5));
+        assert_eq!(account(sent(100, 7, true), &[rec(10, 90, 1)], None), Verdict::Lost(10), "a missing beginning");
+        assert_eq!(account(sent(100, 7, true), &[rec(0, 101, 7)], None), Verdict::Excess(1));
+        assert_eq!(
+            account(sent(100, 7, true), &[Received { first: None, records: 0, checksum: 0 }, rec(0, 100, 7)], None),
+            Verdict::Whole,
+            "a learner that took nothing of the stream adds nothing"
+        );
         // A killed sender: at least what it last reported must have arrived.
-        assert_eq!(account(sent(100, 7, false), &[rec(130, 9, 0)], None), Verdict::SenderKilled);
-        assert_eq!(account(sent(100, 7, false), &[rec(90, 9, 0)], None), Verdict::Lost(10));
-        assert_eq!(account(sent(100, 7, false), &[rec(90, 9, 0)], Some(10)), Verdict::DiedWithLearnerAtLeast(10));
-        assert_eq!(account(None, &[rec(5, 1, 0)], None), Verdict::Unknown);
-        // A killed learner's allowance: its queue and a round, plus 1.5 × its intake
-        // since its last stats write (and one poll).
-        assert_eq!(died_allowance(256, 0.0, 0.5), 258);
-        assert_eq!(died_allowance(256, 200.0, 0.75), 258 + 300);
+        assert_eq!(account(sent(100, 7, false), &[rec(0, 130, 9)], None), Verdict::SenderKilled);
+        assert_eq!(account(sent(100, 7, false), &[rec(0, 90, 9)], None), Verdict::Lost(10));
+        assert_eq!(account(sent(100, 7, false), &[rec(0, 90, 9)], Some(10)), Verdict::DiedWithLearnerAtLeast(10));
+        assert_eq!(account(None, &[rec(0, 5, 1)], None), Verdict::Unknown);
+        // A killed learner's allowance: 1.5 × its intake since its last stats write (and
+        // one poll); its queue is sent again, so it is no part of it.
+        assert_eq!(died_allowance(0.0, 0.5), 0);
+        assert_eq!(died_allowance(200.0, 0.75), 300);
         assert!(Verdict::Lost(1).failed() && !Verdict::DiedWithLearner(5).failed() && !Verdict::SenderKilled.failed());
+        assert!(!Verdict::WholeResent(3).failed());
     }
 }
