@@ -358,6 +358,8 @@ impl ActorProcess {
                 length: ep.step,
                 discounted_return: ep.ret.value() as f32,
                 total_reward: ep.ret.undiscounted() as f32,
+                incarnation: self.incarnation,
+                seq: self.counters.episodes,
             };
             if !self.reports.send(header, &ep.points)? {
                 return Ok(false);
@@ -440,6 +442,7 @@ impl ActorProcess {
             last_task_id: c.last_task_id,
             records_resent: self.steps.resends().resent,
             resend_requests: self.steps.resends().requests,
+            resend_timeouts: self.steps.resends().timeouts,
         }
     }
 

@@ -1,4 +1,5 @@
-//! The code's shape, checked: no module circles inside a crate.
+//! The code's shape, checked: no module circles inside a crate, and no source file
+//! longer than a reader can hold.
 //!
 //! Within each library crate, module A depends on module B when A's code (outside
 //! comments and its `#[cfg(test)]` part) names `crate::B`; a module's submodules count
@@ -146,4 +147,51 @@ fn the_check_finds_a_circle_when_there_is_one() {
     let grouped =
         crate_references("use crate::{\n    replay::{DualReplay, Batch},\n    nets, // crate::no\n    Error,\n};");
     assert_eq!(grouped, ["replay", "nets", "Error"].into_iter().map(String::from).collect());
+}
+
+/// Most lines of a source file, not counting its `#[cfg(test)]` module.
+const MAX_LINES: usize = 600;
+
+/// Lines of `code` before its `#[cfg(test)]` module (at the start of a line).
+fn lines_before_tests(code: &str) -> usize {
+    code.lines().take_while(|l| !l.starts_with("#[cfg(test)]")).count()
+}
+
+/// Whether the module doc (the leading `//!` lines) says the file is one algorithm or
+/// kernel family that reads top to bottom: the one reason to be longer.
+fn reads_top_to_bottom(code: &str) -> bool {
+    let doc: String = code.lines().take_while(|l| l.starts_with("//!")).collect::<Vec<_>>().join(" ");
+    doc.split_whitespace().collect::<Vec<_>>().join(" ").contains("reads top to bottom")
+}
+
+#[test]
+fn no_source_file_is_longer_than_a_reader_can_hold() {
+    let mut long = Vec::new();
+    for krate in workspace_members() {
+        let mut files = Vec::new();
+        for dir in ["src", "tests", "benches"] {
+            rust_files(&workspace_root().join(&krate).join(dir), &mut files);
+        }
+        for f in files {
+            let code = std::fs::read_to_string(&f).unwrap();
+            let n = lines_before_tests(&code);
+            if n > MAX_LINES && !reads_top_to_bottom(&code) {
+                long.push(format!("{} ({n} lines)", f.strip_prefix(workspace_root()).unwrap().display()));
+            }
+        }
+    }
+    assert!(
+        long.is_empty(),
+        "files over {MAX_LINES} lines (tests not counted): split them along their seams, or say in the module doc \
+         that the file is one algorithm that reads top to bottom:\n{}",
+        long.join("\n")
+    );
+}
+
+#[test]
+fn the_length_check_counts_code_before_the_tests_and_reads_the_module_doc() {
+    let code = "//! Kernels: one family that\n//! reads top to bottom.\nfn a() {}\n#[cfg(test)]\nmod tests {}\n";
+    assert_eq!(lines_before_tests(code), 3);
+    assert!(reads_top_to_bottom(code));
+    assert!(!reads_top_to_bottom("//! Kernels.\nfn a() {} // reads top to bottom\n"));
 }

@@ -6,10 +6,12 @@ episode of another category). The recipe's three seeds, then
 the paper's losses on the same scene (../scene-learning, seeds 1 and 2, 165 k env steps).
 
     python3 docs/results/pixel-recipe/first_task.py
+    python3 docs/results/pixel-recipe/first_task.py "NAME=RUN_DIR" ...   # other runs
 """
 import csv
 import json
 import statistics as st
+import sys
 from pathlib import Path
 
 HERE = Path(__file__).parent
@@ -20,6 +22,8 @@ RUNS = {
     "paper's s1": HERE.parent / "scene-learning" / "recognisable-s1",
     "paper's s2": HERE.parent / "scene-learning" / "recognisable-s2",
 }
+if len(sys.argv) > 1:
+    RUNS = {name: Path(run) for name, run in (a.split("=", 1) for a in sys.argv[1:])}
 WINDOW, UNTIL = 25_000, 150_000
 
 rows = {}

@@ -24,6 +24,14 @@ use crate::{Ipc, StopFlag};
 /// How long an actor waits for a learner or curriculum service that is gone
 /// (the launcher restarts or stops the run well before).
 const WAIT_FOR_SUBSCRIBER: Duration = Duration::from_secs(3600);
+/// A step writer whose window is full and has had no acknowledgement for this long
+/// sends everything it holds again (then waits twice as long, up to
+/// [`FULL_WINDOW_RESEND_MAX`]): a learner that never saw those records — a replacement
+/// behind a link that lost them — learns of them without any message from the actor,
+/// which cannot send its heartbeat while it waits here.
+const FULL_WINDOW_RESEND: Duration = Duration::from_secs(1);
+/// The longest wait between two such resends.
+const FULL_WINDOW_RESEND_MAX: Duration = Duration::from_secs(30);
 
 /// The observation of one step record.
 #[derive(Clone, Copy)]
@@ -79,6 +87,9 @@ pub struct ResendCounts {
     pub resent: u64,
     /// Times a learner asked.
     pub requests: u64,
+    /// Times the window was full with no acknowledgement for a while and everything held
+    /// was sent again unasked.
+    pub timeouts: u64,
 }
 
 /// An actor's step stream to the learner, lossless across a restarted learner: it
@@ -238,13 +249,28 @@ impl StepWriter {
     /// `runtime.give_up_secs` without room.
     fn make_room(&mut self) -> Result<bool> {
         let started = Instant::now();
+        let (mut quiet_since, mut resend_after) = (started, FULL_WINDOW_RESEND);
         loop {
+            let base = self.window.base();
             self.apply_acks()?;
             if self.window.has_room() {
                 return Ok(true);
             }
             if self.stop.is_set() {
                 return Ok(false);
+            }
+            if self.window.base() != base {
+                (quiet_since, resend_after) = (Instant::now(), FULL_WINDOW_RESEND);
+            } else if quiet_since.elapsed() >= resend_after {
+                self.window.rewind();
+                self.counts.timeouts += 1;
+                tracing::info!(
+                    held = self.window.held(),
+                    from = self.window.base(),
+                    waited_s = resend_after.as_secs_f64(),
+                    "window full with no acknowledgement: sending the step records it holds again"
+                );
+                (quiet_since, resend_after) = (Instant::now(), (resend_after * 2).min(FULL_WINDOW_RESEND_MAX));
             }
             if started.elapsed() > self.give_up {
                 return Err(RuntimeError::Timeout(format!(

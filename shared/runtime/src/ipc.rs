@@ -64,8 +64,7 @@ pub type AckSubscriber = Subscriber<ipc::Service, AckTable, ()>;
 /// A received step record, borrowed from the sending actor's shared memory until dropped.
 pub type StepSample = iceoryx2::sample::Sample<ipc::Service, [u8], StepHeader>;
 
-/// Most actor processes a run may have alive at once (sizes the services).
-pub const MAX_ACTORS: usize = 64;
+pub use crate::messages::MAX_ACTORS;
 /// Step records the learner may hold from one actor at once, and so one actor's
 /// share of a [`receive_step_round`]. 2 is iceoryx2's default, so a step service
 /// created by a binary that did not set it explicitly stays compatible.

@@ -8,8 +8,12 @@
 
 use iceoryx2::prelude::ZeroCopySend;
 
-use crate::ipc::MAX_ACTORS;
 use crate::reliable::Ack;
+
+/// Most actor processes a run may have alive at once, on all its hosts together: actor
+/// ids are below it (a remote actor has a local publisher on the learner host, so it
+/// sizes the services too), and the learner's [`AckTable`] has one entry per id.
+pub const MAX_ACTORS: usize = 256;
 
 /// `contains` and `with` of a `u32` bit-set newtype: the one rule of the wire's flag types.
 macro_rules! bit_set {
@@ -191,6 +195,12 @@ pub struct EpisodeHeader {
     pub discounted_return: f32,
     /// Undiscounted sum of rewards.
     pub total_reward: f32,
+    /// Incarnation of the actor process (as in [`StepHeader::incarnation`]).
+    pub incarnation: u32,
+    /// Running number of this actor incarnation's episode reports (0, 1, 2, …): with
+    /// `actor` and `incarnation` it names a report across hosts, so a resent one is
+    /// known as such.
+    pub seq: u64,
 }
 
 /// One point of an episode: the pose reached and the reward of the step that led there.

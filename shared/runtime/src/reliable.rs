@@ -188,9 +188,11 @@ impl<T> SendWindow<T> {
     }
 
     /// Go back and transmit everything held again from the oldest record: for a
-    /// sender that knows its link was re-established. (One that cannot know — behind
-    /// a bridge that may restart — relies on the receiver's requests and its own
-    /// announcements instead.)
+    /// sender that knows its link was re-established, or whose window stayed full with
+    /// no acknowledgement for a while (a retransmission timeout, as in TCP: the
+    /// receiver may never have seen those records and cannot ask for what it does not
+    /// know of). Otherwise a sender relies on the receiver's requests and its own
+    /// announcements.
     pub fn rewind(&mut self) {
         self.next_transmit = self.base;
     }

@@ -104,6 +104,10 @@ pub struct ActorStats {
     pub records_resent: u64,
     /// Times a learner asked.
     pub resend_requests: u64,
+    /// Times the actor's window was full with no acknowledgement for a while and it
+    /// sent everything it held again unasked.
+    #[serde(default)]
+    pub resend_timeouts: u64,
 }
 
 /// One actor incarnation's stream as one learner process received it. The records a

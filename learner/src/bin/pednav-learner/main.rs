@@ -17,6 +17,7 @@
 //! This file parses the flags and wires the process together; the loop is
 //! [`process::LearnerProcess`].
 
+mod intake;
 mod process;
 
 use std::path::PathBuf;

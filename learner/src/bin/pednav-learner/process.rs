@@ -8,7 +8,6 @@
 //! this process's [`ProcessState`] written together, so a resume continues the
 //! same batch sequence and step count.
 
-use std::collections::BTreeMap;
 use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result};
@@ -21,51 +20,15 @@ use pednav_runtime::columns::learner as col;
 use pednav_runtime::ipc::{
     AckPublisher, HeartbeatPublisher, HeartbeatSubscriber, StepSample, StepSubscriber, receive_step_round,
 };
-use pednav_runtime::messages::{
-    AckTable, Faults, Heartbeat, ProcessKind, StepFlags, StepHeader, StreamAck, state_payload,
-};
-use pednav_runtime::reliable::{ReceiveCursor, Verdict};
-use pednav_runtime::stats::{LearnerStats, LimiterCounters, ProcessStatus, StreamTally};
+use pednav_runtime::messages::{Faults, Heartbeat, ProcessKind, StepFlags, StepHeader, state_payload};
+use pednav_runtime::stats::{LearnerStats, LimiterCounters, ProcessStatus};
 use pednav_runtime::weights::WeightsBroadcaster;
 use pednav_runtime::write_health::WriteHealth;
 use pednav_runtime::{Ipc, Metrics, RunConfig, RunDir, StopFlag, run_prefix};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 
-/// How often a learner asks an actor again for records it misses (after a restart,
-/// the first out-of-order record asks at once).
-const RESEND_RETRY: Duration = Duration::from_secs(1);
-/// Least time between two acknowledgement tables.
-const ACK_EVERY: Duration = Duration::from_millis(5);
-/// Most time between two acknowledgement tables while the learner reads.
-const ACK_REPEAT: Duration = Duration::from_millis(200);
-
-/// One actor incarnation's stream at this learner: where it stands
-/// ([`ReceiveCursor`]) and what it took (for the integration test's count-and-checksum
-/// comparison).
-struct Tally {
-    cursor: ReceiveCursor,
-    first_seq: Option<u64>,
-    records: u64,
-    checksum: u32,
-    out_of_order: u64,
-    duplicates: u64,
-    resumed: u64,
-}
-
-impl Tally {
-    fn new(receiver: u32, now: Instant) -> Tally {
-        Tally {
-            cursor: ReceiveCursor::new(receiver, RESEND_RETRY, now),
-            first_seq: None,
-            records: 0,
-            checksum: 0,
-            out_of_order: 0,
-            duplicates: 0,
-            resumed: 0,
-        }
-    }
-}
+use crate::intake::{Admit, StepIntake};
 
 /// What the learner process adds to a DSAC checkpoint (`extra` in its state file), so
 /// that a resume continues the same batch sequence and step count.
@@ -84,11 +47,7 @@ struct Learner {
     replay: DualReplay,
     sample_rng: ChaCha8Rng,
     received: u64,
-    tallies: BTreeMap<(u32, u32), Tally>,
-    /// This learner's incarnation in its acknowledgements (its pid).
-    receiver: u32,
-    /// Whether an acknowledgement changed since the last table was published.
-    acks_changed: bool,
+    intake: StepIntake,
     kind: FrameKind,
     /// Bytes of one record's observation (`RunConfig::observation_bytes`).
     record_bytes: usize,
@@ -105,49 +64,15 @@ impl Learner {
             tracing::error!(actor = h.actor, got = bytes.len(), expected, "step record of the wrong size dropped");
             return Ok(());
         }
-        let now = Instant::now();
-        let receiver = self.receiver;
-        let tally = self.tallies.entry((h.actor, h.incarnation)).or_insert_with(|| Tally::new(receiver, now));
-        let asked = tally.cursor.ack().resend;
-        match tally.cursor.offer(h.seq, h.base, now) {
-            Verdict::Accept => {}
-            Verdict::Resume { skipped } => {
-                // The records jumped over went to a learner before this one: no
-                // transition may span the jump.
-                tally.resumed += 1;
+        match self.intake.admit(h, bytes, Instant::now()) {
+            Admit::Take => {}
+            Admit::TakeAfterJump => {
+                // No transition may span the jump.
                 let cut = self.replay.cut_streams(|s| h.same_actor_incarnation(s));
-                tracing::info!(
-                    actor = h.actor,
-                    incarnation = h.incarnation,
-                    skipped,
-                    open_episodes_cut = cut,
-                    "step stream resumes after records a previous learner took"
-                );
+                tracing::info!(actor = h.actor, open_episodes_cut = cut, "open episodes of the stream cut");
             }
-            Verdict::Duplicate => {
-                tally.duplicates += 1;
-                return Ok(());
-            }
-            Verdict::Missing { expected } => {
-                tally.out_of_order += 1;
-                if tally.cursor.ack().resend != asked {
-                    self.acks_changed = true;
-                    tracing::info!(
-                        actor = h.actor,
-                        incarnation = h.incarnation,
-                        expected,
-                        got = h.seq,
-                        "step records missing (this learner restarted, or records were lost on the way): \
-                         asked the actor to send them again"
-                    );
-                }
-                return Ok(());
-            }
+            Admit::Drop => return Ok(()),
         }
-        self.acks_changed = true;
-        tally.first_seq.get_or_insert(h.seq);
-        tally.records += 1;
-        tally.checksum = tally.checksum.wrapping_add(h.record_crc(bytes));
         self.received += 1;
         let state: Vec<f32>;
         let frame = match self.kind {
@@ -181,40 +106,6 @@ impl Learner {
             self.take(sample.user_header(), sample.payload())?;
         }
         Ok(n)
-    }
-
-    /// The acknowledgement table: each actor's newest incarnation's cursor.
-    fn ack_table(&self) -> AckTable {
-        let mut table = AckTable::default();
-        for (&(actor, incarnation), t) in &self.tallies {
-            if let Some(entry) = table.streams.get_mut(actor as usize)
-                && incarnation >= entry.incarnation
-            {
-                *entry = StreamAck { incarnation, ack: t.cursor.ack() };
-            }
-        }
-        table
-    }
-
-    /// An actor's heartbeat says how far its stream goes: a stream this learner is
-    /// behind on, with no progress for a while, is asked for again (the tail lost
-    /// with a killed learner; a stream whose actor waits on a full window).
-    fn announced(&mut self, h: &Heartbeat, now: Instant) {
-        if h.kind != ProcessKind::ACTOR || h.env_steps == 0 {
-            return;
-        }
-        let receiver = self.receiver;
-        let tally = self.tallies.entry((h.id, h.incarnation)).or_insert_with(|| Tally::new(receiver, now));
-        if tally.cursor.on_announce(h.stream_base, h.env_steps, now) {
-            self.acks_changed = true;
-            tracing::info!(
-                actor = h.id,
-                incarnation = h.incarnation,
-                announced = h.env_steps,
-                expected = tally.cursor.expected(),
-                "step records missing at the end of a stream: asked the actor to send them again"
-            );
-        }
     }
 
     fn refilling(&self) -> bool {
@@ -284,7 +175,6 @@ pub struct LearnerProcess {
     steps_in: StepSubscriber,
     acks_out: AckPublisher,
     heartbeats_in: HeartbeatSubscriber,
-    last_acks: Instant,
     weights_out: WeightsBroadcaster,
     heartbeat: HeartbeatPublisher,
     metrics: Metrics,
@@ -348,9 +238,7 @@ impl LearnerProcess {
             replay,
             sample_rng,
             received: 0,
-            tallies: BTreeMap::new(),
-            receiver: std::process::id(),
-            acks_changed: false,
+            intake: StepIntake::new(std::process::id()),
             kind,
             record_bytes: cfg.observation_bytes(),
             refill_until: if resumed_from.is_some() { cfg.dsac.warmup } else { 0 },
@@ -389,7 +277,6 @@ impl LearnerProcess {
             steps_in,
             acks_out,
             heartbeats_in,
-            last_acks: Instant::now(),
             weights_out,
             heartbeat,
             metrics,
@@ -464,25 +351,20 @@ impl LearnerProcess {
     }
 
     /// One fair round of step records into the replay, then what the actors announced
-    /// and the acknowledgements (this learner is reading: see [`ReceiveCursor::on_announce`]).
+    /// and the acknowledgements (this learner is reading: see [`StepIntake::announced`]).
     fn take_round(&mut self) -> Result<u64> {
         let n = self.learner.take_round(&self.steps_in, &mut self.round)?;
         self.received_total += n;
         let now = Instant::now();
         loop {
             match self.heartbeats_in.receive() {
-                Ok(Some(h)) => self.learner.announced(h.payload(), now),
+                Ok(Some(h)) => self.learner.intake.announced(h.payload(), now),
                 Ok(None) => break,
                 Err(e) => anyhow::bail!("heartbeat subscriber: {e:?}"),
             }
         }
-        // Published when changed (at most every ACK_EVERY), and again every
-        // ACK_REPEAT: a table lost on the lossy service must not leave an actor waiting.
-        let due = self.last_acks.elapsed();
-        if (self.learner.acks_changed && due >= ACK_EVERY) || due >= ACK_REPEAT {
-            self.acks_out.send_copy(self.learner.ack_table()).map_err(|e| anyhow::anyhow!("ack table: {e:?}"))?;
-            self.learner.acks_changed = false;
-            self.last_acks = now;
+        if let Some(table) = self.learner.intake.due_table(now) {
+            self.acks_out.send_copy(table).map_err(|e| anyhow::anyhow!("ack table: {e:?}"))?;
         }
         Ok(n)
     }
@@ -679,20 +561,7 @@ impl LearnerProcess {
 }
 
 fn write_stats(dir: &RunDir, l: &Learner, received_total: u64, status: ProcessStatus) -> Result<()> {
-    let streams = l
-        .tallies
-        .iter()
-        .map(|(&(actor, incarnation), t)| StreamTally {
-            actor,
-            incarnation,
-            first_seq: t.first_seq,
-            records: t.records,
-            checksum: t.checksum,
-            out_of_order: t.out_of_order,
-            duplicates: t.duplicates,
-            resumed: t.resumed,
-        })
-        .collect();
+    let streams = l.intake.tallies();
     let stats = LearnerStats {
         status,
         pid: std::process::id(),

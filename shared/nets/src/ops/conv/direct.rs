@@ -1,5 +1,7 @@
 //! Direct (implicit-gemm) kernels: convolutions read straight from the padded
-//! channel-last input, with no column matrix.
+//! channel-last input, with no column matrix. One kernel family (forward, weight
+//! gradient, input gradient over one SIMD abstraction) that reads top to bottom, so
+//! it stays in one file.
 //!
 //! With few output channels the gemm after im2col gets a thin right-hand side and
 //! spends its time moving memory (measured: the first 3D-TCN layer, C_in = 1, ran at

@@ -1,0 +1,35 @@
+"""The per-run table of README.md: wall time, env steps received, updates, median update
+time and when the PassFirstTask gate opened, for every run of the ablation (and the
+recipe's own runs it is compared with), from the files each results folder keeps.
+
+    python3 docs/results/pixel-ablations/runs.py
+"""
+import csv
+import json
+import statistics as st
+from pathlib import Path
+
+HERE = Path(__file__).parent
+RECIPE = HERE.parent / "pixel-recipe"
+ARMS = {
+    "recipe (fast critic + contrast)": [RECIPE / "recipe-s1", RECIPE / "recipe-s2"],
+    "fast critic, no contrast": [HERE / "nocontrast-s1", HERE / "nocontrast-s2"],
+}
+
+print("| arm | run | wall time | env steps received | updates | median update | gate opened after (env steps) |")
+print("|---|---|---|---|---|---|---|")
+for arm, runs in ARMS.items():
+    for run in runs:
+        if not run.exists():
+            print(f"| {arm} | {run.name} | (missing) | | | | |")
+            continue
+        with open(run / "metrics" / "learner.csv") as f:
+            rows = list(csv.DictReader(f))
+        last = rows[-1]
+        update_ms = st.median(float(r["update_ms"]) for r in rows if r["update_ms"])
+        gate = json.loads((run / "stats" / "curriculum.json").read_text()).get("first_task_passed")
+        opened = f"{gate['decision_steps']:,}" if gate else "not opened"
+        print(
+            f"| {arm} | {run.name} | {float(last['elapsed_s']) / 60:.1f} min | {int(last['step']):,} "
+            f"| {int(last['updates']):,} | {update_ms:.1f} ms | {opened} |"
+        )

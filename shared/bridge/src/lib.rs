@@ -1,0 +1,26 @@
+//! pednav across hosts: the pieces a bridge between one host's iceoryx2 services and
+//! another's is built from.
+//!
+//! - [`wire`]: every message a run sends, as explicit little-endian bytes with a kind
+//!   and a version byte — the in-memory `#[repr(C)]` layouts of
+//!   `pednav_runtime::messages` never leave their host;
+//! - [`link`]: zenoh sessions that reach only the endpoints they are given (no
+//!   scouting), and the keys a run's messages travel under;
+//! - [`hosts`]: the learner host's table of joined hosts and the global actor ids
+//!   each one was given, kept in the run directory so a restarted learner host gives
+//!   a rejoining host the same ids.
+//!
+//! Losslessness across hosts is not here but in `pednav_runtime::reliable`: step
+//! records carry (actor, incarnation, seq, base) and the learner's acknowledgements
+//! travel back, whatever carries them.
+
+#![warn(missing_docs)]
+
+pub mod error;
+pub mod hosts;
+pub mod link;
+pub mod wire;
+
+pub use error::{BridgeError, Result};
+pub use hosts::{Host, HostTable};
+pub use link::{Keys, LinkConfig};
