@@ -7,11 +7,14 @@
 #   ./deploy/run_local.sh --actors 2 --run-dir runs/X      # new run X (CPU preset), or resume it
 #   ./deploy/run_local.sh --actors 4 --config deploy/configs/paper/navacl_plus_s_16.toml --device cuda
 #                                                          # the paper's setting, learner on the GPU
+#   ./deploy/run_local.sh --actors 0 --listen tcp/0.0.0.0:7447 --run-dir runs/big
+#                                                          # a learner host that actor hosts join:
+#       target/release/pednav-run join --connect tcp/LEARNER_HOST:7447 --actors 16 --run-dir runs/big
 #
 # Ctrl-C (or SIGTERM) stops the actors, then the learner (final checkpoint) and
 # the curriculum service (saved state); running the same --run-dir again resumes.
-# Everything else (--seed, --set FIELD=VALUE, --learner-threads, --envs, --device, --actor-device) is
-# passed to `pednav-run launch`; see `target/release/pednav-run launch --help`.
+# Everything else (--seed, --set FIELD=VALUE, --learner-threads, --envs, --device, --actor-device,
+# --listen) is passed to `pednav-run launch`; see `target/release/pednav-run launch --help`.
 # `--device cuda[:N]` (or --actor-device) builds and runs the CUDA binaries
 # (deploy/build_cuda.sh, target-cuda/release; no GPU is needed to build them).
 #

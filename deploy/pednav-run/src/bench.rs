@@ -9,6 +9,8 @@
 //! - `system`: env steps/s of a whole run (launcher, curriculum, learner, N actors)
 //!   with a random policy or with inference, the learner only inserting (warm-up
 //!   larger than the budget), so the figure is the actors' + IPC's + replay's.
+//! - `bridge`: the two bridges of a run across hosts over loopback
+//!   (`bench_bridge.rs`).
 //! - `soak`: a long smoke-config run whose learner, curriculum service and actors
 //!   are SIGKILLed at seeded random times; restarts, steps lost, whether training
 //!   continued (`soak/`; not in CI).
@@ -66,6 +68,10 @@ pub enum Bench {
     /// restarts, whether training continued after each kill, and steps lost between
     /// the actors and the learner (Markdown on stdout, soak.json in the run directory).
     Soak(crate::soak::Soak),
+    /// The bridges of a run across hosts, on loopback: step records/s, weights and
+    /// task latency, and records lost or duplicated across a cut link and a stalled
+    /// learner (about 2½ minutes with the defaults).
+    Bridge(crate::bench_bridge::BenchBridge),
     /// (internal) publisher side of `stream`.
     #[command(hide = true)]
     StreamPublisher { prefix: String, records: u64, frame: usize },
@@ -90,6 +96,7 @@ pub fn run(b: Bench) -> Result<()> {
         Bench::WeightsSubscriber { prefix, repeats, ready } => weights_subscriber(&prefix, repeats, &ready),
         Bench::System { actors, envs, steps, inference } => system(&actors, envs, steps, inference),
         Bench::Soak(args) => crate::soak::run(args),
+        Bench::Bridge(args) => crate::bench_bridge::run(args),
     }
 }
 

@@ -12,14 +12,20 @@ use clap::Args;
 use pednav_nets::DeviceSpec;
 use pednav_runtime::{MemoryPlan, RunConfig, RunDir, StopFlag, memory, run_prefix};
 
-use crate::supervisor::{ProcessPlan, Supervisor};
+use crate::supervisor::{HostRole, ProcessPlan, Supervisor};
 
 /// Arguments of `launch`.
 #[derive(Args)]
 pub struct Launch {
-    /// Number of actor processes.
+    /// Number of actor processes on this host (0 only with --listen: every actor on
+    /// other hosts).
     #[arg(long, default_value_t = 2)]
     actors: u32,
+    /// Let actor hosts join the run (`pednav-run join --connect …`): listen on this
+    /// endpoint, `tcp/HOST:PORT`, e.g. `tcp/0.0.0.0:7447` (repeatable). Explicit
+    /// endpoints only: nothing is discovered, nothing multicast.
+    #[arg(long, value_name = "ENDPOINT")]
+    listen: Vec<String>,
     /// Config file (TOML). Required for a new run; omit it to resume RUN_DIR.
     #[arg(long)]
     config: Option<PathBuf>,
@@ -95,15 +101,32 @@ pub fn check_memory(cfg: &RunConfig, file: &str, plan: &MemoryPlan) -> Result<()
 
 /// Prepare the run of `args` and supervise it to the end.
 pub fn launch(args: Launch) -> Result<()> {
-    let Launch { actors, config, run_dir, seed, overrides, bin_dir, learner_threads, envs, device, actor_device } =
-        args;
+    let Launch {
+        actors,
+        listen,
+        config,
+        run_dir,
+        seed,
+        overrides,
+        bin_dir,
+        learner_threads,
+        envs,
+        device,
+        actor_device,
+    } = args;
     if let Some(m) = envs
         && (m == 0 || m > 4096)
     {
         bail!("--envs must be 1 … 4096, got {m}");
     }
-    if actors == 0 || actors as usize > pednav_runtime::ipc::MAX_ACTORS {
-        bail!("--actors must be 1 … {}, got {actors}", pednav_runtime::ipc::MAX_ACTORS);
+    if actors as usize > pednav_runtime::ipc::MAX_ACTORS || (actors == 0 && listen.is_empty()) {
+        bail!(
+            "--actors must be 1 … {} (0 only with --listen, when actor hosts bring every actor), got {actors}",
+            pednav_runtime::ipc::MAX_ACTORS
+        );
+    }
+    if !listen.is_empty() {
+        pednav_bridge::LinkConfig::listening(&listen).check()?;
     }
     // 1. Config and run directory: everything is checked before any process starts.
     let (cfg, run_dir, file) = match (config, run_dir) {
@@ -145,20 +168,7 @@ pub fn launch(args: Launch) -> Result<()> {
     let dir = RunDir::new(&run_dir);
     let resumed =
         dir.prepare(&cfg).with_context(|| format!("the run directory {} cannot be used", run_dir.display()))?;
-    let lock = dir.launcher_lock();
-    if let Some(pid) = std::fs::read_to_string(&lock).ok().and_then(|s| s.trim().parse::<i32>().ok())
-        && pid_alive(pid)
-        && pid != std::process::id() as i32
-    {
-        bail!("{} is already being run by pednav-run (pid {pid})", run_dir.display());
-    }
-    std::fs::write(&lock, std::process::id().to_string()).with_context(|| {
-        format!(
-            "{}: cannot write the launcher's lock file (is the run directory writable, the disk full?)",
-            lock.display()
-        )
-    })?;
-    let _ = std::fs::remove_file(dir.done_marker());
+    let lock = lock_run_dir(&dir)?;
     let stop = StopFlag::install();
     eprintln!(
         "pednav: {} run {} — {} actor(s) × {} envs, variant {:?}, learner on {learner_device}, actors' inference \
@@ -170,7 +180,24 @@ pub fn launch(args: Launch) -> Result<()> {
         cfg.curriculum.variant,
         run_prefix(&run_dir)
     );
-    let plan = ProcessPlan { bins, actors, envs, learner_threads, learner_device, actor_device };
+    if !listen.is_empty() {
+        eprintln!(
+            "pednav: actor hosts join with `pednav-run join --connect tcp/THIS_HOST:PORT --run-dir DIR` (listening on \
+             {}; run {:?})",
+            listen.join(", "),
+            pednav_bridge::run_name(&run_dir)
+        );
+    }
+    let plan = ProcessPlan {
+        bins,
+        actors,
+        first_actor: 0,
+        envs,
+        learner_threads,
+        learner_device,
+        actor_device,
+        role: HostRole::Learner { listen },
+    };
     let result = Supervisor::start(&dir, &cfg, &plan, stop).and_then(Supervisor::run);
     let _ = std::fs::remove_file(&lock);
     let summary = std::fs::read_to_string(dir.stats().join("learner.json")).unwrap_or_default();
@@ -182,7 +209,28 @@ pub fn launch(args: Launch) -> Result<()> {
     result
 }
 
-fn default_bin_dir() -> Result<PathBuf> {
+/// Take the run directory for this launcher (refused while another launcher runs it)
+/// and clear the previous run's done marker; returns the lock file to remove at the end.
+pub fn lock_run_dir(dir: &RunDir) -> Result<PathBuf> {
+    let lock = dir.launcher_lock();
+    if let Some(pid) = std::fs::read_to_string(&lock).ok().and_then(|s| s.trim().parse::<i32>().ok())
+        && pid_alive(pid)
+        && pid != std::process::id() as i32
+    {
+        bail!("{} is already being run by pednav-run (pid {pid})", dir.root().display());
+    }
+    std::fs::write(&lock, std::process::id().to_string()).with_context(|| {
+        format!(
+            "{}: cannot write the launcher's lock file (is the run directory writable, the disk full?)",
+            lock.display()
+        )
+    })?;
+    let _ = std::fs::remove_file(dir.done_marker());
+    Ok(lock)
+}
+
+/// The folder of this binary (where the other pednav binaries are built).
+pub fn default_bin_dir() -> Result<PathBuf> {
     let exe = std::env::current_exe().context("locating pednav-run")?;
     Ok(exe.parent().context("pednav-run has no folder")?.to_path_buf())
 }

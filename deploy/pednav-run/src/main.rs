@@ -9,14 +9,20 @@
 //! then the learner (which drains the step stream and writes a final
 //! checkpoint) and the curriculum service (which saves its state).
 //!
+//! `join` starts an actor host of a run whose learner host was launched with
+//! `--listen`; each host then runs a bridge (`multihost.rs`, `pednav_bridge`).
+//!
 //! Children run in their own process group (so a terminal's Ctrl-C reaches the
 //! launcher only, which then stops them in order) and get SIGTERM if the
 //! launcher itself dies. `launch.rs` turns the flags into a prepared run,
 //! `supervisor.rs` keeps the processes alive.
 
 mod bench;
+mod bench_bridge;
+mod child;
 mod exit_cause;
 mod launch;
+mod multihost;
 mod soak;
 mod supervisor;
 
@@ -35,8 +41,15 @@ struct Cli {
 
 #[derive(Subcommand)]
 enum Cmd {
-    /// Start (or resume) a run: curriculum service, learner and N actors.
+    /// Start (or resume) a run: curriculum service, learner and N actors; with
+    /// `--listen`, actor hosts can join it.
     Launch(launch::Launch),
+    /// Join a run on another host (its `launch --listen`) with N actors on this one.
+    Join(multihost::Join),
+    /// The bridge between this host's processes of a run and the other hosts'
+    /// (started by `launch --listen` and `join`; not for direct use).
+    #[command(hide = true)]
+    Bridge(multihost::Bridge),
     /// Measure the runtime: step-stream throughput, weights latency, whole-system env steps/s.
     #[command(subcommand)]
     Bench(bench::Bench),
@@ -82,5 +95,7 @@ fn run() -> Result<()> {
             Ok(())
         }
         Cmd::Launch(args) => launch::launch(args),
+        Cmd::Join(args) => multihost::join(args),
+        Cmd::Bridge(args) => multihost::bridge(args),
     }
 }

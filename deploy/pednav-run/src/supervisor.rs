@@ -1,192 +1,54 @@
-//! The supervisor of one run's processes: starts the curriculum service, the learner
-//! and the actors, restarts any of them that dies — the learner from its last
-//! checkpoint (refilling its replay as on a resume), the curriculum service from its
-//! saved state, an actor afresh — within a budget of [`MAX_RESTARTS`] per
-//! [`RESTART_WINDOW`] each; a learner or curriculum service that stops sending
-//! heartbeats for `runtime.hang_secs` is treated as dead. It prints the progress line
-//! from the heartbeats and stops everything in order.
+//! The supervisor of one host's processes of a run: starts the curriculum service, the
+//! learner and the actors (the learner host), or the actors alone (an actor host), and
+//! the bridge when the run spans hosts; restarts any of them that dies — the learner
+//! from its last checkpoint (refilling its replay as on a resume), the curriculum
+//! service from its saved state, an actor or a bridge afresh — within a budget of
+//! [`MAX_RESTARTS`] per [`RESTART_WINDOW`] each; a learner or curriculum service that
+//! stops sending heartbeats for `runtime.hang_secs` is treated as dead. It prints the
+//! progress line from the heartbeats (an actor host sees the learner's through its
+//! bridge) and stops everything in order.
 //!
-//! Invariant: the actors are always stopped before the learner and the curriculum
-//! service, so the learner drains a stream nobody writes any more before its final
-//! checkpoint, and the curriculum service has every report before it saves.
+//! Invariant: the actors are always stopped first, then the bridge, then the learner
+//! and the curriculum service, so the learner drains a stream nobody writes any more
+//! before its final checkpoint, and the curriculum service has every report before it
+//! saves.
 
 use std::collections::{BTreeMap, VecDeque};
-use std::fs::OpenOptions;
 use std::io::{IsTerminal, Write};
-use std::os::unix::process::CommandExt;
 use std::path::PathBuf;
-use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
 
-use anyhow::{Context, Result, bail};
+use anyhow::{Context, Result};
 use pednav_nets::DeviceSpec;
 use pednav_runtime::ipc::HeartbeatSubscriber;
 use pednav_runtime::messages::{Heartbeat, ProcessKind};
 use pednav_runtime::{Ipc, RestartRecord, RunConfig, RunDir, StopFlag, run_prefix};
 
-use crate::exit_cause::ExitCause;
+use crate::child::{Proc, stop_all};
 
-/// A process that dies more than this many times within [`RESTART_WINDOW`] ends the run.
-pub(crate) const MAX_RESTARTS: usize = 5;
-/// The window of [`MAX_RESTARTS`].
-pub(crate) const RESTART_WINDOW: Duration = Duration::from_secs(120);
+pub(crate) use crate::child::{MAX_RESTARTS, RESTART_WINDOW};
 
-/// One supervised child.
-struct Proc {
-    name: String,
-    args: Vec<String>,
-    binary: PathBuf,
-    log: PathBuf,
-    child: Option<Child>,
-    restarts: VecDeque<Instant>,
-    total_restarts: u32,
-    /// Its heartbeats' (kind, id).
-    heartbeat: (ProcessKind, u32),
-    /// Whether silence means a hang (the learner and the curriculum service; an actor
-    /// legitimately stays silent while it waits for a restarting learner).
-    watch_hang: bool,
-    /// The headline of its last death's cause, and how many deaths in a row had it.
-    last_cause: Option<(String, u32)>,
-    /// When a process that died of the same cause again is started (back-off).
-    restart_at: Option<Instant>,
-    /// Where its log ended when it was last started: its death's cause is read from
-    /// there on (the log holds every run of the process).
-    log_start: u64,
-    /// When it was last started.
-    started: Option<Instant>,
-}
+/// A remote actor whose heartbeats stopped this long ago is not counted on the progress line.
+const REMOTE_SILENCE: Duration = Duration::from_secs(10);
 
-impl Proc {
-    /// Count a death against the restart budget; an error naming the cause (from the
-    /// log) when the budget is spent.
-    fn count_restart(&mut self, status: &str, cause: &ExitCause) -> Result<()> {
-        self.restarts.push_back(Instant::now());
-        while self.restarts.front().is_some_and(|t| t.elapsed() > RESTART_WINDOW) {
-            self.restarts.pop_front();
-        }
-        if self.restarts.len() > MAX_RESTARTS {
-            bail!(
-                "{} died {} times within {} s ({status}): {}\nfrom its log ({}):\n{}",
-                self.name,
-                MAX_RESTARTS + 1,
-                RESTART_WINDOW.as_secs(),
-                cause.headline(),
-                self.log.display(),
-                cause.report()
-            );
-        }
-        self.total_restarts += 1;
-        Ok(())
-    }
-
-    /// How long to wait before restarting it after a death with `headline`: nothing the
-    /// first time, then 2, 4, 8 … up to [`MAX_BACKOFF`] seconds while the same error
-    /// repeats (a fault that a restart alone does not fix); returns the delay and the
-    /// number of deaths in a row with that error.
-    fn backoff(&mut self, headline: &str) -> (Duration, u32) {
-        // A run that lasted longer than the restart window was healthy: start counting afresh.
-        if self.started.is_some_and(|t| t.elapsed() > RESTART_WINDOW) {
-            self.last_cause = None;
-        }
-        let repeats = match &self.last_cause {
-            Some((h, n)) if h == headline => n + 1,
-            _ => 1,
-        };
-        self.last_cause = Some((headline.to_string(), repeats));
-        let delay = if repeats < 2 {
-            Duration::ZERO
-        } else {
-            (Duration::from_secs(1) * 2u32.pow((repeats - 1).min(6))).min(MAX_BACKOFF)
-        };
-        (delay, repeats)
-    }
-
-    fn start(&mut self) -> Result<()> {
-        self.log_start = std::fs::metadata(&self.log).map_or(0, |m| m.len());
-        self.started = Some(Instant::now());
-        let log = OpenOptions::new()
-            .create(true)
-            .append(true)
-            .open(&self.log)
-            .with_context(|| format!("opening {}", self.log.display()))?;
-        let mut cmd = Command::new(&self.binary);
-        cmd.args(&self.args).stdin(Stdio::null()).stdout(log.try_clone()?).stderr(log).process_group(0);
-        // SAFETY: only async-signal-safe calls between fork and exec.
-        unsafe {
-            cmd.pre_exec(|| {
-                libc::prctl(libc::PR_SET_PDEATHSIG, libc::SIGTERM);
-                Ok(())
-            });
-        }
-        let child = cmd.spawn().with_context(|| format!("starting {} ({})", self.name, self.binary.display()))?;
-        tracing::info!(process = %self.name, pid = child.id(), "started");
-        self.child = Some(child);
-        Ok(())
-    }
-
-    fn signal(&self, sig: libc::c_int) {
-        if let Some(c) = &self.child {
-            // SAFETY: kill(2) on our own child's pid.
-            unsafe { libc::kill(c.id() as libc::pid_t, sig) };
-        }
-    }
-
-    /// SIGKILL it and reap it.
-    fn kill(&mut self) {
-        self.signal(libc::SIGKILL);
-        if let Some(c) = self.child.as_mut() {
-            let _ = c.wait();
-        }
-        self.child = None;
-    }
-
-    /// Exit status if it has exited (and forget the child).
-    fn exited(&mut self) -> Option<std::process::ExitStatus> {
-        let status = self.child.as_mut().and_then(|c| c.try_wait().ok().flatten());
-        if status.is_some() {
-            self.child = None;
-        }
-        status
-    }
-
-    fn running(&self) -> bool {
-        self.child.is_some()
-    }
-
-    /// Why the process ended, from what its last run wrote to its log ([`ExitCause`]).
-    fn exit_cause(&self) -> ExitCause {
-        use std::io::{Read, Seek, SeekFrom};
-        let mut text = String::new();
-        if let Ok(mut f) = std::fs::File::open(&self.log) {
-            let _ = f.seek(SeekFrom::Start(self.log_start)).and_then(|_| f.read_to_string(&mut text));
-        }
-        ExitCause::parse(&text)
-    }
-}
-
-/// The longest wait before restarting a process that keeps dying of the same error.
-pub(crate) const MAX_BACKOFF: Duration = Duration::from_secs(60);
-
-/// Stop processes with SIGTERM, SIGKILL after `grace`.
-fn stop_all(procs: &mut [&mut Proc], grace: Duration) {
-    for p in procs.iter() {
-        p.signal(libc::SIGTERM);
-    }
-    let start = Instant::now();
-    while procs.iter().any(|p| p.running()) {
-        for p in procs.iter_mut() {
-            if let Some(s) = p.exited() {
-                tracing::info!(process = %p.name, status = %s, "stopped");
-            }
-        }
-        if start.elapsed() > grace {
-            for p in procs.iter_mut().filter(|p| p.running()) {
-                tracing::warn!(process = %p.name, "did not stop within {grace:?}; killing it");
-                p.kill();
-            }
-        }
-        std::thread::sleep(Duration::from_millis(50));
-    }
+/// Which of a run's processes this host runs.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum HostRole {
+    /// The learner, the curriculum service and the local actors; with `listen`
+    /// endpoints, a bridge that lets actor hosts join (`launch --listen`).
+    Learner {
+        /// Endpoints the bridge listens on (none: a run on one machine).
+        listen: Vec<String>,
+    },
+    /// Actors and a bridge to the learner host (`join`).
+    Actors {
+        /// The learner host's endpoints.
+        connect: Vec<String>,
+        /// The run's name on the link.
+        run: String,
+        /// This host's name on the link.
+        host: String,
+    },
 }
 
 /// What to start: the binaries and how many of which, with their flags.
@@ -195,6 +57,11 @@ pub struct ProcessPlan {
     pub bins: PathBuf,
     /// Actor processes.
     pub actors: u32,
+    /// The global id of the first of them (0 on the learner host; an actor host's
+    /// join grants its range).
+    pub first_actor: u32,
+    /// The processes this host runs.
+    pub role: HostRole,
     /// Simulator instances per actor (default: the config's).
     pub envs: Option<usize>,
     /// Learner compute threads (default: all cores).
@@ -211,9 +78,13 @@ pub struct Supervisor {
     stop: StopFlag,
     ipc: Ipc,
     heartbeats: HeartbeatSubscriber,
-    curriculum: Proc,
-    learner: Proc,
+    /// The curriculum service and the learner (the learner host), none on an actor host.
+    services: Vec<Proc>,
+    /// The bridge, when the run spans hosts.
+    bridge: Option<Proc>,
     actors: Vec<Proc>,
+    /// The local actors' global ids.
+    local_ids: std::ops::Range<u32>,
     /// The newest heartbeat of each (kind, id).
     latest: BTreeMap<(ProcessKind, u32), Heartbeat>,
     /// When each (kind, id) last sent one (cleared when its process restarts).
@@ -242,33 +113,63 @@ impl Supervisor {
         )?;
         let heartbeats = ipc.heartbeat_subscriber()?;
         let rd = dir.root().display().to_string();
-        let mk = |name: String, bin: &str, args: Vec<String>, heartbeat: (ProcessKind, u32)| Proc {
+        let mk = |name: String, binary: PathBuf, args: Vec<String>, heartbeat: (ProcessKind, u32)| Proc {
             log: dir.logs().join(format!("{name}.log")),
             name,
-            binary: plan.bins.join(bin),
+            binary,
             args,
             child: None,
             restarts: VecDeque::new(),
             total_restarts: 0,
             heartbeat,
-            watch_hang: heartbeat.0 != ProcessKind::ACTOR,
+            watch_hang: heartbeat.0 == ProcessKind::LEARNER || heartbeat.0 == ProcessKind::CURRICULUM,
             last_cause: None,
             restart_at: None,
             log_start: 0,
             started: None,
         };
-        let mut curriculum = mk(
-            "curriculum".into(),
-            "pednav-curriculum",
-            vec!["serve".into(), "--run-dir".into(), rd.clone()],
-            (ProcessKind::CURRICULUM, 0),
-        );
-        let mut learner_args = vec!["--run-dir".into(), rd.clone(), "--device".into(), plan.learner_device.to_string()];
-        if let Some(t) = plan.learner_threads {
-            learner_args.extend(["--threads".into(), t.to_string()]);
+        let local_ids = plan.first_actor..plan.first_actor + plan.actors;
+        let launcher = std::env::current_exe().context("locating pednav-run (it runs the bridge)")?;
+        let bridge_args =
+            |role_args: Vec<String>| [vec!["bridge".into(), "--run-dir".into(), rd.clone()], role_args].concat();
+        let (mut services, mut bridge) = (Vec::new(), None);
+        match &plan.role {
+            HostRole::Learner { listen } => {
+                services.push(mk(
+                    "curriculum".into(),
+                    plan.bins.join("pednav-curriculum"),
+                    vec!["serve".into(), "--run-dir".into(), rd.clone()],
+                    (ProcessKind::CURRICULUM, 0),
+                ));
+                let mut learner_args =
+                    vec!["--run-dir".into(), rd.clone(), "--device".into(), plan.learner_device.to_string()];
+                if let Some(t) = plan.learner_threads {
+                    learner_args.extend(["--threads".into(), t.to_string()]);
+                }
+                services.push(mk(
+                    "learner".into(),
+                    plan.bins.join("pednav-learner"),
+                    learner_args,
+                    (ProcessKind::LEARNER, 0),
+                ));
+                if !listen.is_empty() {
+                    let mut args = vec!["--local-actors".to_string(), plan.actors.to_string()];
+                    for e in listen {
+                        args.extend(["--listen".into(), e.clone()]);
+                    }
+                    bridge = Some(mk("bridge".into(), launcher, bridge_args(args), (ProcessKind::BRIDGE, 0)));
+                }
+            }
+            HostRole::Actors { connect, run, host } => {
+                let mut args = vec!["--run".to_string(), run.clone(), "--host".into(), host.clone()];
+                for e in connect {
+                    args.extend(["--connect".into(), e.clone()]);
+                }
+                bridge = Some(mk("bridge".into(), launcher, bridge_args(args), (ProcessKind::BRIDGE, 0)));
+            }
         }
-        let mut learner = mk("learner".into(), "pednav-learner", learner_args, (ProcessKind::LEARNER, 0));
-        let mut actors: Vec<Proc> = (0..plan.actors)
+        let mut actors: Vec<Proc> = local_ids
+            .clone()
             .map(|k| {
                 let mut args = vec![
                     "--run-dir".into(),
@@ -281,22 +182,21 @@ impl Supervisor {
                 if let Some(m) = plan.envs {
                     args.extend(["--envs".into(), m.to_string()]);
                 }
-                mk(format!("actor-{k}"), "pednav-actor", args, (ProcessKind::ACTOR, k))
+                mk(format!("actor-{k}"), plan.bins.join("pednav-actor"), args, (ProcessKind::ACTOR, k))
             })
             .collect();
-        curriculum.start()?;
-        learner.start()?;
-        for a in actors.iter_mut() {
-            a.start()?;
+        for p in services.iter_mut().chain(bridge.iter_mut()).chain(actors.iter_mut()) {
+            p.start()?;
         }
         Ok(Supervisor {
             dir: dir.clone(),
             stop,
             ipc,
             heartbeats,
-            curriculum,
-            learner,
+            services,
+            bridge,
             actors,
+            local_ids,
             latest: BTreeMap::new(),
             last_beat: BTreeMap::new(),
             hang: Duration::from_secs_f64(cfg.runtime.hang_secs),
@@ -338,8 +238,8 @@ impl Supervisor {
             self.latest.insert((h.kind, h.id), *h);
             self.last_beat.insert((h.kind, h.id), Instant::now());
         }
-        let Supervisor { learner, curriculum, actors, last_beat, ipc, stop, hang, dir, .. } = self;
-        for p in [learner, curriculum].into_iter().chain(actors.iter_mut()) {
+        let Supervisor { services, bridge, actors, last_beat, ipc, stop, hang, dir, .. } = self;
+        for p in services.iter_mut().chain(bridge.iter_mut()).chain(actors.iter_mut()) {
             if let Some(at) = p.restart_at {
                 if Instant::now() >= at && !stop.is_set() {
                     p.restart_at = None;
@@ -402,14 +302,18 @@ impl Supervisor {
             }
         }
         if let Ok(reason) = std::fs::read_to_string(self.dir.done_marker()) {
-            eprintln!("\npednav: the learner reached its budget ({reason})");
+            eprintln!("\npednav: the learner reached its budget ({})", reason.trim());
             return Ok(false);
         }
         let every = if self.tty { Duration::from_secs(1) } else { Duration::from_secs(30) };
         if self.last_line.elapsed() >= every {
             self.last_line = Instant::now();
-            let restarts = self.learner.total_restarts + self.curriculum.total_restarts;
+            let restarts: u32 = self.services.iter().chain(self.bridge.iter()).map(|p| p.total_restarts).sum();
             let mut line = progress_line(self.started.elapsed(), &self.latest, &self.actors, restarts);
+            let remote = self.remote_actors();
+            if remote > 0 {
+                line.push_str(&format!(" | remote actors {remote}"));
+            }
             for extra in [self.budget_progress(), self.faults_line(), self.backoff_line()].into_iter().flatten() {
                 line.push_str(" | ");
                 line.push_str(&extra);
@@ -468,8 +372,10 @@ impl Supervisor {
 
     /// Processes waiting out a back-off before their restart.
     fn backoff_line(&self) -> Option<String> {
-        let waiting: Vec<String> = [&self.learner, &self.curriculum]
-            .into_iter()
+        let waiting: Vec<String> = self
+            .services
+            .iter()
+            .chain(self.bridge.iter())
             .chain(self.actors.iter())
             .filter_map(|p| {
                 let at = p.restart_at?;
@@ -481,12 +387,34 @@ impl Supervisor {
         (!waiting.is_empty()).then(|| waiting.join(", "))
     }
 
-    /// Actors first, then the learner (final checkpoint) and the curriculum service (state).
+    /// Actors whose heartbeats reach this host through the bridge (other hosts'), seen
+    /// within the last [`REMOTE_SILENCE`].
+    fn remote_actors(&self) -> usize {
+        self.last_beat
+            .iter()
+            .filter(|(k, t)| {
+                k.0 == ProcessKind::ACTOR && !self.local_ids.contains(&k.1) && t.elapsed() < REMOTE_SILENCE
+            })
+            .count()
+    }
+
+    /// Actors first, then the bridge, then the learner (final checkpoint) and the
+    /// curriculum service (state).
     fn stop_in_order(&mut self) {
-        eprintln!("\npednav: stopping — actors first, then the learner (final checkpoint) and the curriculum service");
+        if self.services.is_empty() {
+            eprintln!("\npednav: stopping — actors first, then the bridge");
+        } else {
+            eprintln!(
+                "\npednav: stopping — actors first, then the learner (final checkpoint) and the curriculum service"
+            );
+        }
         let mut refs: Vec<&mut Proc> = self.actors.iter_mut().collect();
         stop_all(&mut refs, Duration::from_secs(30));
-        stop_all(&mut [&mut self.learner, &mut self.curriculum], Duration::from_secs(300));
+        if let Some(b) = self.bridge.as_mut() {
+            stop_all(&mut [b], Duration::from_secs(15));
+        }
+        let mut refs: Vec<&mut Proc> = self.services.iter_mut().collect();
+        stop_all(&mut refs, Duration::from_secs(300));
         self.ipc.cleanup_dead_nodes();
     }
 }
@@ -521,39 +449,4 @@ fn progress_line(
         actors.len(),
         restarts
     )
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    fn proc_named(name: &str) -> Proc {
-        Proc {
-            name: name.into(),
-            args: Vec::new(),
-            binary: PathBuf::from("/nonexistent"),
-            log: PathBuf::from("/nonexistent.log"),
-            child: None,
-            restarts: VecDeque::new(),
-            total_restarts: 0,
-            heartbeat: (ProcessKind::LEARNER, 0),
-            watch_hang: true,
-            last_cause: None,
-            restart_at: None,
-            log_start: 0,
-            started: None,
-        }
-    }
-
-    /// A death of a new cause restarts at once; the same cause again waits 2, 4, 8 …
-    /// seconds, at most a minute, so a fault a restart cannot fix does not spend the
-    /// restart budget in seconds.
-    #[test]
-    fn the_same_error_in_a_row_backs_off_and_a_new_one_does_not() {
-        let mut p = proc_named("learner");
-        let disk = "the final checkpoint could not be written — No space left on device (os error 28)";
-        let delays: Vec<(u64, u32)> = (0..9).map(|_| p.backoff(disk)).map(|(d, n)| (d.as_secs(), n)).collect();
-        assert_eq!(delays, [(0, 1), (2, 2), (4, 3), (8, 4), (16, 5), (32, 6), (60, 7), (60, 8), (60, 9)]);
-        assert_eq!(p.backoff("killed by SIGKILL"), (Duration::ZERO, 1), "another cause starts over");
-    }
 }

@@ -14,6 +14,7 @@ RECIPE = HERE.parent / "pixel-recipe"
 ARMS = {
     "recipe (fast critic + contrast)": [RECIPE / "recipe-s1", RECIPE / "recipe-s2"],
     "fast critic, no contrast": [HERE / "nocontrast-s1", HERE / "nocontrast-s2"],
+    "one critic (recipe otherwise)": [HERE / "onecritic-s1", HERE / "onecritic-s2"],
 }
 
 print("| arm | run | wall time | env steps received | updates | median update | gate opened after (env steps) |")

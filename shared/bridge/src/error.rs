@@ -42,6 +42,12 @@ pub enum BridgeError {
     /// A link that could not be configured or opened.
     #[error("link: {0}")]
     Link(String),
+    /// The learner host refused this host's join; its reason.
+    #[error("the learner host refused the join: {0}")]
+    Refused(String),
+    /// The local run's services (iceoryx2) or run directory.
+    #[error(transparent)]
+    Runtime(#[from] pednav_runtime::RuntimeError),
     /// A join the host table cannot grant, or a table that contradicts itself.
     #[error("host table: {0}")]
     Hosts(String),

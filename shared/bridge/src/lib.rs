@@ -8,7 +8,9 @@
 //!   scouting), and the keys a run's messages travel under;
 //! - [`hosts`]: the learner host's table of joined hosts and the global actor ids
 //!   each one was given, kept in the run directory so a restarted learner host gives
-//!   a rejoining host the same ids.
+//!   a rejoining host the same ids; [`join`]: how a host asks for them;
+//! - [`learner_host`] and [`actor_host`]: the two bridges, each a loop between its
+//!   host's iceoryx2 services and the link (`pednav-run bridge` runs one).
 //!
 //! Losslessness across hosts is not here but in `pednav_runtime::reliable`: step
 //! records carry (actor, incarnation, seq, base) and the learner's acknowledgements
@@ -16,11 +18,20 @@
 
 #![warn(missing_docs)]
 
+pub mod actor_host;
 pub mod error;
+pub mod forward;
 pub mod hosts;
+pub mod join;
+pub mod learner_host;
 pub mod link;
+mod remote;
 pub mod wire;
 
+pub use actor_host::{ActorHostOptions, run_actor_host};
 pub use error::{BridgeError, Result};
+pub use forward::{BridgeStats, LEARNER_HOST};
 pub use hosts::{Host, HostTable};
+pub use join::{JoinGrant, JoinRequest, request_join};
+pub use learner_host::{LearnerHostOptions, run_learner_host, run_name};
 pub use link::{Keys, LinkConfig};

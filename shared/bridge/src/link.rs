@@ -30,20 +30,33 @@ pub struct LinkConfig {
     pub listen: Vec<String>,
     /// Endpoints to connect to (`tcp/LEARNER_HOST:7447`): an actor host's `--connect`.
     pub connect: Vec<String>,
-    /// How long opening a session waits for its `connect` endpoints (milliseconds)
-    /// before it fails.
+    /// How long opening a session waits for its `connect` endpoints (milliseconds).
     pub connect_timeout_ms: u64,
+    /// Whether opening fails when the `connect` endpoints are not reached in time
+    /// (`join`, which must not start anything without a learner host), or returns and
+    /// keeps trying in the background (a bridge, which waits out a learner host that
+    /// restarts; zenoh reconnects a dropped link to its `connect` endpoints by itself).
+    pub fail_unreached: bool,
 }
 
 impl LinkConfig {
     /// A session that listens on `listen` (the learner host).
     pub fn listening(listen: &[String]) -> LinkConfig {
-        LinkConfig { listen: listen.to_vec(), connect: Vec::new(), connect_timeout_ms: 10_000 }
+        LinkConfig { listen: listen.to_vec(), connect: Vec::new(), connect_timeout_ms: 10_000, fail_unreached: true }
     }
 
-    /// A session that connects to `connect` (an actor host).
+    /// A session that connects to `connect` (an actor host); opening it fails when
+    /// the learner host is not reached within 10 s.
     pub fn connecting(connect: &[String]) -> LinkConfig {
-        LinkConfig { listen: Vec::new(), connect: connect.to_vec(), connect_timeout_ms: 10_000 }
+        LinkConfig { listen: Vec::new(), connect: connect.to_vec(), connect_timeout_ms: 10_000, fail_unreached: true }
+    }
+
+    /// This link, but opening it waits at most `connect_timeout_ms` for the learner
+    /// host and then returns, trying on in the background.
+    #[must_use]
+    pub fn keep_trying(mut self) -> LinkConfig {
+        self.fail_unreached = false;
+        self
     }
 
     /// Check every endpoint (see [`check_endpoint`]) and that there is at least one.
@@ -76,7 +89,7 @@ impl LinkConfig {
             ("listen/exit_on_failure", "true".to_string()),
             ("connect/endpoints", quoted(&self.connect)),
             ("connect/timeout_ms", self.connect_timeout_ms.to_string()),
-            ("connect/exit_on_failure", "true".to_string()),
+            ("connect/exit_on_failure", self.fail_unreached.to_string()),
         ];
         for (key, value) in settings {
             c.insert_json5(key, &value)
@@ -100,6 +113,14 @@ impl LinkConfig {
                 }
             ))
         })
+    }
+}
+
+/// Close a session, waiting until its links are down (a close that fails leaves
+/// nothing to do: the peer sees the link go either way).
+pub fn close(session: zenoh::Session) {
+    if let Err(e) = session.close().wait() {
+        tracing::debug!("closing the link: {e}");
     }
 }
 
@@ -194,9 +215,9 @@ impl Keys {
         format!("{}/tasks", self.root)
     }
 
-    /// The run's resolved `config.toml` and host table (queryable on the learner host).
-    pub fn join(&self) -> String {
-        format!("{}/join", self.root)
+    /// The run's end, said by the learner host once its learner finished.
+    pub fn done(&self) -> String {
+        format!("{}/done", self.root)
     }
 
     /// The heartbeats of one host's processes.

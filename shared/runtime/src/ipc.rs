@@ -47,6 +47,10 @@ pub type EpisodeSubscriber = Subscriber<ipc::Service, [EpisodePoint], EpisodeHea
 pub type TaskClient = Client<ipc::Service, TaskRequest, (), TaskResponse, ()>;
 /// Task server (curriculum side).
 pub type TaskServer = Server<ipc::Service, TaskRequest, (), TaskResponse, ()>;
+/// A task request on its way: the client's side, polled for the response.
+pub type TaskPending = iceoryx2::pending_response::PendingResponse<ipc::Service, TaskRequest, (), TaskResponse, ()>;
+/// A task request received: the server's side, answered with `send_copy`.
+pub type TaskActive = iceoryx2::active_request::ActiveRequest<ipc::Service, TaskRequest, (), TaskResponse, ()>;
 /// Weights publisher (learner side).
 pub type WeightsPublisher = Publisher<ipc::Service, [f32], WeightsHeader>;
 /// Weights subscriber (actor side).
@@ -144,6 +148,23 @@ impl<Payload: std::fmt::Debug + ZeroCopySend + 'static, Header: std::fmt::Debug 
         }
         let _ = iceoryx2::port::update_connections::UpdateConnections::update_connections(&self.publisher);
         true
+    }
+
+    /// Publish `payload` under `header` once a subscriber is attached (waiting up to
+    /// `wait`, as [`LosslessSender::wait_for_subscriber`]); whether it was delivered —
+    /// `false` when no subscriber came, the process is stopping, or the receiver stayed
+    /// full past the give-up. An error only when no sample can be loaned.
+    pub fn publish(&self, header: Header, payload: &[Payload], stop: &StopFlag, wait: Duration) -> Result<bool>
+    where
+        Payload: Copy,
+        Header: Default,
+    {
+        if self.subscribers() == 0 && !self.wait_for_subscriber(stop, wait) {
+            return Ok(false);
+        }
+        let mut sample = self.publisher.loan_slice_uninit(payload.len()).map_err(|e| ipc_err("loan a sample", e))?;
+        *sample.user_header_mut() = header;
+        Ok(sample.write_from_slice(payload).send().is_ok())
     }
 }
 

@@ -52,8 +52,10 @@ pub use signal::StopFlag;
 /// sends them to `logs/<process>.log`; lines the log refuses are counted and shown in
 /// the heartbeat, [`log_health`]), level from `RUST_LOG` (default info).
 pub fn init_logging() {
+    // zenoh's peer routing warns at every start that gossip is off, which pednav's
+    // links choose on purpose (no traffic to hosts nobody named): not shown by default.
     let filter = tracing_subscriber::EnvFilter::try_from_default_env()
-        .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("info"));
+        .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("info,zenoh::net::routing::hat::peer=error"));
     let _ = tracing_subscriber::fmt()
         .with_env_filter(filter)
         .with_target(false)

@@ -295,6 +295,8 @@ impl ProcessKind {
     pub const LEARNER: ProcessKind = ProcessKind(2);
     /// The curriculum service.
     pub const CURRICULUM: ProcessKind = ProcessKind(3);
+    /// A bridge between hosts (it sends no heartbeat; the launcher names it so).
+    pub const BRIDGE: ProcessKind = ProcessKind(4);
 }
 
 /// Periodic liveness and progress of one process (for the launcher's progress line and logs).
@@ -410,6 +412,9 @@ mod tests {
 
     #[test]
     fn process_kinds_keep_their_codes() {
-        assert_eq!([ProcessKind::ACTOR, ProcessKind::LEARNER, ProcessKind::CURRICULUM].map(|k| k.0), [1, 2, 3]);
+        assert_eq!(
+            [ProcessKind::ACTOR, ProcessKind::LEARNER, ProcessKind::CURRICULUM, ProcessKind::BRIDGE].map(|k| k.0),
+            [1, 2, 3, 4]
+        );
     }
 }
