@@ -12,8 +12,8 @@ from pathlib import Path
 HERE = Path(__file__).parent
 RECIPE = HERE.parent / "pixel-recipe"
 ARMS = {
-    "recipe (fast critic + contrast)": [RECIPE / "recipe-s1", RECIPE / "recipe-s2"],
-    "fast critic, no contrast": [HERE / "nocontrast-s1", HERE / "nocontrast-s2"],
+    "recipe (fast critic + contrast)": [RECIPE / "recipe-s1", RECIPE / "recipe-s2", RECIPE / "recipe-s3"],
+    "fast critic, no contrast": [HERE / "nocontrast-s1", HERE / "nocontrast-s2", HERE / "nocontrast-s3"],
     "one critic (recipe otherwise)": [HERE / "onecritic-s1", HERE / "onecritic-s2"],
 }
 
