@@ -40,7 +40,7 @@ use zenoh::query::Reply;
 use zenoh::sample::SampleKind;
 
 use crate::error::{BridgeError, Result};
-use crate::forward::{BridgeStats, IDLE, LEARNER_HOST, Latest, LocalRun, STATS_EVERY, Tally, link_err};
+use crate::forward::{BridgeStats, IDLE, LEARNER_HOST, Latest, LocalRun, STATS_EVERY, Tally, link_err, refuse};
 use crate::link::{Keys, LinkConfig};
 use crate::wire;
 
@@ -321,16 +321,6 @@ fn link_for<'a>(
         links.insert(actor, publisher);
     }
     Ok(&links[&actor])
-}
-
-/// Count and log (at debug level: a flood would fill the log) a refused message.
-pub(crate) fn refuse(tally: &Tally, e: &BridgeError) {
-    let first = tally.refused.fetch_add(1, Ordering::Relaxed) == 0;
-    if first {
-        tracing::warn!("a message from the link was refused (further ones are counted in stats/bridge.json): {e}");
-    } else {
-        tracing::debug!("refused: {e}");
-    }
 }
 
 /// Ask the learner host for the newest weights (a late joiner acts on the current

@@ -29,6 +29,16 @@ pub(crate) fn link_err(what: &'static str) -> impl Fn(zenoh::Error) -> BridgeErr
     move |e| BridgeError::Link(format!("{what}: {e}"))
 }
 
+/// Count and log (at debug level: a flood would fill the log) a refused message.
+pub(crate) fn refuse(tally: &Tally, e: &BridgeError) {
+    let first = tally.refused.fetch_add(1, Ordering::Relaxed) == 0;
+    if first {
+        tracing::warn!("a message from the link was refused (further ones are counted in stats/bridge.json): {e}");
+    } else {
+        tracing::debug!("refused: {e}");
+    }
+}
+
 /// The newest value a callback stored, taken by the bridge's loop; an older one not
 /// yet taken is replaced (acknowledgement tables and weights: newest wins).
 pub(crate) struct Latest<T>(Arc<Mutex<Option<T>>>);

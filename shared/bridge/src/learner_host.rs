@@ -35,9 +35,8 @@ use zenoh::qos::CongestionControl;
 use zenoh::query::Query;
 use zenoh::sample::SampleKind;
 
-use crate::actor_host::refuse;
 use crate::error::{BridgeError, Result};
-use crate::forward::{BridgeStats, IDLE, LEARNER_HOST, Latest, LocalRun, STATS_EVERY, Tally, link_err};
+use crate::forward::{BridgeStats, IDLE, LEARNER_HOST, Latest, LocalRun, STATS_EVERY, Tally, link_err, refuse};
 use crate::join::{JOIN_KEY, JoinDesk, JoinRequest, key_safe_name};
 use crate::link::{Keys, LinkConfig};
 use crate::remote::{Inbound, RemoteActors, WorkerSetup};

@@ -24,9 +24,8 @@ use pednav_runtime::StopFlag;
 use pednav_runtime::ipc::{EpisodeSender, StepSender};
 use zenoh::bytes::ZBytes;
 
-use crate::actor_host::refuse;
 use crate::error::{BridgeError, Result};
-use crate::forward::Tally;
+use crate::forward::{Tally, refuse};
 use crate::wire;
 
 /// A message from the link for one remote actor.
