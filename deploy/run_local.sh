@@ -14,7 +14,8 @@
 # Ctrl-C (or SIGTERM) stops the actors, then the learner (final checkpoint) and
 # the curriculum service (saved state); running the same --run-dir again resumes.
 # Everything else (--seed, --set FIELD=VALUE, --learner-threads, --envs, --device, --actor-device,
-# --listen) is passed to `pednav-run launch`; see `target/release/pednav-run launch --help`.
+# --listen, --tls-ca/--tls-cert/--tls-key for mutual TLS between hosts: docs/multi-host.md)
+# is passed to `pednav-run launch`; see `target/release/pednav-run launch --help`.
 # `--device cuda[:N]` (or --actor-device) builds and runs the CUDA binaries
 # (deploy/build_cuda.sh, target-cuda/release; no GPU is needed to build them).
 #

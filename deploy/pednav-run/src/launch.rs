@@ -22,10 +22,13 @@ pub struct Launch {
     #[arg(long, default_value_t = 2)]
     actors: u32,
     /// Let actor hosts join the run (`pednav-run join --connect …`): listen on this
-    /// endpoint, `tcp/HOST:PORT`, e.g. `tcp/0.0.0.0:7447` (repeatable). Explicit
-    /// endpoints only: nothing is discovered, nothing multicast.
+    /// endpoint, `tcp/HOST:PORT`, e.g. `tcp/0.0.0.0:7447`, or `tls/HOST:PORT` with the
+    /// --tls-* files (repeatable). Explicit endpoints only: nothing is discovered,
+    /// nothing multicast.
     #[arg(long, value_name = "ENDPOINT")]
     listen: Vec<String>,
+    #[command(flatten)]
+    tls: crate::tls::TlsArgs,
     /// Config file (TOML). Required for a new run; omit it to resume RUN_DIR.
     #[arg(long)]
     config: Option<PathBuf>,
@@ -104,6 +107,7 @@ pub fn launch(args: Launch) -> Result<()> {
     let Launch {
         actors,
         listen,
+        tls,
         config,
         run_dir,
         seed,
@@ -125,8 +129,11 @@ pub fn launch(args: Launch) -> Result<()> {
             pednav_runtime::ipc::MAX_ACTORS
         );
     }
+    let tls = tls.files()?;
     if !listen.is_empty() {
-        pednav_bridge::LinkConfig::listening(&listen).check()?;
+        pednav_bridge::LinkConfig::listening(&listen).with_tls(tls.clone()).check()?;
+    } else if tls.is_some() {
+        bail!("--tls-ca, --tls-cert and --tls-key secure the link to actor hosts: give --listen tls/HOST:PORT too");
     }
     // 1. Config and run directory: everything is checked before any process starts.
     let (cfg, run_dir, file) = match (config, run_dir) {
@@ -182,8 +189,10 @@ pub fn launch(args: Launch) -> Result<()> {
     );
     if !listen.is_empty() {
         eprintln!(
-            "pednav: actor hosts join with `pednav-run join --connect tcp/THIS_HOST:PORT --run-dir DIR` (listening on \
+            "pednav: actor hosts join with `pednav-run join --connect {}/THIS_HOST:PORT{} --run-dir DIR` (listening on \
              {}; run {:?})",
+            if tls.is_some() { "tls" } else { "tcp" },
+            if tls.is_some() { " --tls-ca CA --tls-cert CERT --tls-key KEY" } else { "" },
             listen.join(", "),
             pednav_bridge::run_name(&run_dir)
         );
@@ -196,7 +205,7 @@ pub fn launch(args: Launch) -> Result<()> {
         learner_threads,
         learner_device,
         actor_device,
-        role: HostRole::Learner { listen },
+        role: HostRole::Learner { listen, tls },
     };
     let result = Supervisor::start(&dir, &cfg, &plan, stop).and_then(Supervisor::run);
     let _ = std::fs::remove_file(&lock);

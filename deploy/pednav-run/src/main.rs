@@ -25,6 +25,7 @@ mod launch;
 mod multihost;
 mod soak;
 mod supervisor;
+mod tls;
 
 use std::path::PathBuf;
 

@@ -16,6 +16,7 @@ use pednav_runtime::{RunConfig, RunDir, StopFlag, run_prefix};
 
 use crate::launch::{check_devices, default_bin_dir, lock_run_dir};
 use crate::supervisor::{HostRole, ProcessPlan, Supervisor};
+use crate::tls::TlsArgs;
 
 /// How long `join` tries to reach the learner host and be answered.
 const JOIN_TIMEOUT: Duration = Duration::from_secs(30);
@@ -23,7 +24,8 @@ const JOIN_TIMEOUT: Duration = Duration::from_secs(30);
 /// Arguments of `join`.
 #[derive(Args)]
 pub struct Join {
-    /// The learner host's endpoint, `tcp/HOST:PORT` (its `launch --listen`).
+    /// The learner host's endpoint, `tcp/HOST:PORT`, or `tls/HOST:PORT` with the
+    /// --tls-* files (its `launch --listen`).
     #[arg(long, required = true)]
     connect: Vec<String>,
     /// Actor processes on this host.
@@ -45,6 +47,8 @@ pub struct Join {
     /// Where the actors run policy inference (default: the run config's `runtime.actor_device`).
     #[arg(long)]
     actor_device: Option<DeviceSpec>,
+    #[command(flatten)]
+    tls: TlsArgs,
 }
 
 /// Arguments of `bridge` (started by the launcher; see `pednav_bridge`).
@@ -68,6 +72,8 @@ pub struct Bridge {
     /// Actor host: this host's name on the link.
     #[arg(long, requires = "connect")]
     host: Option<String>,
+    #[command(flatten)]
+    tls: TlsArgs,
 }
 
 /// This machine's name, made key-safe.
@@ -79,7 +85,7 @@ fn machine_name() -> String {
 /// Join the run of the learner host at `--connect` and supervise this host's actors
 /// and bridge until the run ends or Ctrl-C.
 pub fn join(args: Join) -> Result<()> {
-    let Join { connect, actors, run_dir, host, bin_dir, envs, actor_device } = args;
+    let Join { connect, actors, run_dir, host, bin_dir, envs, actor_device, tls } = args;
     if actors == 0 || actors as usize > pednav_runtime::ipc::MAX_ACTORS {
         bail!("--actors must be 1 … {}, got {actors}", pednav_runtime::ipc::MAX_ACTORS);
     }
@@ -89,7 +95,8 @@ pub fn join(args: Join) -> Result<()> {
         bail!("--envs must be 1 … 4096, got {m}");
     }
     let host = host.unwrap_or_else(machine_name);
-    let link = LinkConfig::connecting(&connect);
+    let tls = tls.files()?;
+    let link = LinkConfig::connecting(&connect).with_tls(tls.clone());
     link.check()?;
     let bins = bin_dir.map_or_else(default_bin_dir, Ok)?;
     if !bins.join("pednav-actor").exists() {
@@ -139,7 +146,7 @@ pub fn join(args: Join) -> Result<()> {
         learner_threads: None,
         learner_device: DeviceSpec::Cpu,
         actor_device,
-        role: HostRole::Actors { connect, run: grant.run, host },
+        role: HostRole::Actors { connect, run: grant.run, host, tls },
     };
     let result = Supervisor::start(&dir, &cfg, &plan, stop).and_then(Supervisor::run);
     let _ = std::fs::remove_file(&lock);
@@ -150,17 +157,18 @@ pub fn join(args: Join) -> Result<()> {
 /// Run one host's bridge until SIGTERM / Ctrl-C.
 pub fn bridge(args: Bridge) -> Result<()> {
     let stop = StopFlag::install();
+    let tls = args.tls.files()?;
     let stats = if !args.listen.is_empty() {
         let opts = LearnerHostOptions {
             run_dir: args.run_dir,
-            link: LinkConfig::listening(&args.listen),
+            link: LinkConfig::listening(&args.listen).with_tls(tls),
             local_actors: args.local_actors,
         };
         pednav_bridge::run_learner_host(&opts, &stop)?
     } else if !args.connect.is_empty() {
         let opts = ActorHostOptions {
             run_dir: args.run_dir,
-            link: LinkConfig::connecting(&args.connect).keep_trying(),
+            link: LinkConfig::connecting(&args.connect).with_tls(tls).keep_trying(),
             run: args.run.context("--run is required with --connect")?,
             host: args.host.context("--host is required with --connect")?,
         };

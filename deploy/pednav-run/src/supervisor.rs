@@ -39,6 +39,8 @@ pub enum HostRole {
     Learner {
         /// Endpoints the bridge listens on (none: a run on one machine).
         listen: Vec<String>,
+        /// Mutual TLS on the link (endpoints `tls/…`).
+        tls: Option<pednav_bridge::TlsFiles>,
     },
     /// Actors and a bridge to the learner host (`join`).
     Actors {
@@ -48,6 +50,8 @@ pub enum HostRole {
         run: String,
         /// This host's name on the link.
         host: String,
+        /// Mutual TLS on the link (endpoints `tls/…`).
+        tls: Option<pednav_bridge::TlsFiles>,
     },
 }
 
@@ -134,7 +138,7 @@ impl Supervisor {
             |role_args: Vec<String>| [vec!["bridge".into(), "--run-dir".into(), rd.clone()], role_args].concat();
         let (mut services, mut bridge) = (Vec::new(), None);
         match &plan.role {
-            HostRole::Learner { listen } => {
+            HostRole::Learner { listen, tls } => {
                 services.push(mk(
                     "curriculum".into(),
                     plan.bins.join("pednav-curriculum"),
@@ -157,14 +161,16 @@ impl Supervisor {
                     for e in listen {
                         args.extend(["--listen".into(), e.clone()]);
                     }
+                    args.extend(crate::tls::tls_flags(tls.as_ref()));
                     bridge = Some(mk("bridge".into(), launcher, bridge_args(args), (ProcessKind::BRIDGE, 0)));
                 }
             }
-            HostRole::Actors { connect, run, host } => {
+            HostRole::Actors { connect, run, host, tls } => {
                 let mut args = vec!["--run".to_string(), run.clone(), "--host".into(), host.clone()];
                 for e in connect {
                     args.extend(["--connect".into(), e.clone()]);
                 }
+                args.extend(crate::tls::tls_flags(tls.as_ref()));
                 bridge = Some(mk("bridge".into(), launcher, bridge_args(args), (ProcessKind::BRIDGE, 0)));
             }
         }
@@ -314,7 +320,8 @@ impl Supervisor {
             if remote > 0 {
                 line.push_str(&format!(" | remote actors {remote}"));
             }
-            for extra in [self.budget_progress(), self.faults_line(), self.backoff_line()].into_iter().flatten() {
+            let extras = [self.budget_progress(), self.faults_line(), self.backoff_line(), self.learner_host_line()];
+            for extra in extras.into_iter().flatten() {
                 line.push_str(" | ");
                 line.push_str(&extra);
             }
@@ -385,6 +392,18 @@ impl Supervisor {
             })
             .collect();
         (!waiting.is_empty()).then(|| waiting.join(", "))
+    }
+
+    /// On an actor host, when the learner's heartbeats stopped coming across the link
+    /// (the learner host is away or unreachable): how long, and what the actors do.
+    fn learner_host_line(&self) -> Option<String> {
+        if !self.services.is_empty() {
+            return None;
+        }
+        let silent = self.last_beat.get(&(ProcessKind::LEARNER, 0)).map_or(self.started.elapsed(), Instant::elapsed);
+        (silent >= REMOTE_SILENCE).then(|| {
+            format!("learner host silent {} s: actors wait (records held) and go on when it is back", silent.as_secs())
+        })
     }
 
     /// Actors whose heartbeats reach this host through the bridge (other hosts'), seen

@@ -15,6 +15,7 @@ ARMS = {
     "recipe (fast critic + contrast)": [RECIPE / "recipe-s1", RECIPE / "recipe-s2", RECIPE / "recipe-s3"],
     "fast critic, no contrast": [HERE / "nocontrast-s1", HERE / "nocontrast-s2", HERE / "nocontrast-s3"],
     "one critic (recipe otherwise)": [HERE / "onecritic-s1", HERE / "onecritic-s2"],
+    "3-step returns (recipe otherwise)": [HERE / "nstep3-s1", HERE / "nstep3-s2"],
 }
 
 print("| arm | run | wall time | env steps received | updates | median update | gate opened after (env steps) |")

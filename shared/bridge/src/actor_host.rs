@@ -3,12 +3,15 @@
 //!
 //! What it moves:
 //! - step records and episode reports of the local actors → the link, each actor on
-//!   its own key, with congestion control *Block*, in the order the actor sent them
-//!   (episode reports, which have no acknowledgement yet, wait here while the learner
-//!   host is away; one in flight when a link is cut can be lost);
+//!   its own key, with congestion control *Block*, in the order the actor sent them;
 //! - the learner's acknowledgement tables and the weights ← the link, newest wins,
 //!   republished on the local services (the newest weights are asked for at once, so a
 //!   host that joins late acts on the current policy from its first step);
+//! - the learner host's acknowledgements of episode reports ← the link: the bridge
+//!   holds each report ([`HeldReports`], at most [`HELD_REPORTS`]) until it is
+//!   acknowledged, sends it again [`REPORT_RESEND_AFTER`] after it went without one and
+//!   when the learner host comes back, and puts none on the link while the learner
+//!   host is away ([`crate::reports`]);
 //! - task requests → a query to the learner host, whose answer goes back to the actor;
 //! - heartbeats both ways: the local actors' out, the learner's and the curriculum
 //!   service's in (the local progress line shows the run's progress);
@@ -18,9 +21,13 @@
 //! Invariant: the bridge holds no step record. A record is in its actor's window until
 //! a learner acknowledges it ([`pednav_runtime::reliable`]), so a bridge that dies, a
 //! link that drops and a learner host that restarts lose nothing: the learner asks
-//! again for what it lacks, or the actor sends its full window again unasked.
+//! again for what it lacks, or the actor sends its full window again unasked. Episode
+//! reports are held here, not in the actor: a link that drops and a learner host that
+//! restarts lose none, but a bridge that dies loses those it held unacknowledged (at
+//! most a quarter of a second's, while the learner host is there) and those its actors
+//! reported before its replacement was up.
 
-use std::collections::{HashMap, VecDeque};
+use std::collections::HashMap;
 use std::path::PathBuf;
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -42,6 +49,7 @@ use zenoh::sample::SampleKind;
 use crate::error::{BridgeError, Result};
 use crate::forward::{BridgeStats, IDLE, LEARNER_HOST, Latest, LocalRun, STATS_EVERY, Tally, link_err, refuse};
 use crate::link::{Keys, LinkConfig};
+use crate::reports::HeldReports;
 use crate::wire;
 
 /// How long a task request waits for the learner host's answer (the actor asks again
@@ -64,9 +72,16 @@ pub struct ActorHostOptions {
 /// Rounds of step records one pass of the bridge's loop forwards at most.
 const ROUNDS_PER_PASS: usize = 64;
 
-/// Episode reports held while the learner host is away, at most (older ones are
-/// dropped first, and counted).
-const HELD_REPORTS: usize = 65_536;
+/// Episode reports held unacknowledged, at most (while the learner host is away: the
+/// oldest are given up first, and counted).
+pub const HELD_REPORTS: usize = 65_536;
+
+/// How long a report that was put on the link waits for its acknowledgement before
+/// it is sent again (acknowledgements come every quarter of a second).
+pub const REPORT_RESEND_AFTER: Duration = Duration::from_secs(2);
+
+/// How long a stopping bridge waits for the acknowledgement of the reports it holds.
+const LAST_ACKS_WAIT: Duration = Duration::from_secs(3);
 
 /// A task request waiting for the learner host's answer.
 struct TaskInFlight {
@@ -92,12 +107,14 @@ pub fn run_actor_host(opts: &ActorHostOptions, stop: &StopFlag) -> Result<Bridge
 
     let _token = session.liveliness().declare_token(keys.alive(&opts.host)).wait().map_err(link_err("liveliness"))?;
     let acks = Latest::<ZBytes>::new();
+    let report_acks = Latest::<ZBytes>::new();
     let weights = Latest::<ZBytes>::new();
     let done = Latest::<ZBytes>::new();
     let (beats_tx, beats_rx) = mpsc::channel::<ZBytes>();
     let learner_alive = Arc::new(AtomicBool::new(false));
     let _subscriptions = (
         subscribe(&session, keys.acks(), acks.clone())?,
+        subscribe(&session, keys.report_acks(), report_acks.clone())?,
         subscribe(&session, keys.weights(), weights.clone())?,
         subscribe(&session, keys.done(), done.clone())?,
         session
@@ -126,7 +143,7 @@ pub fn run_actor_host(opts: &ActorHostOptions, stop: &StopFlag) -> Result<Bridge
         tally: &tally,
         steps: HashMap::new(),
         episodes: HashMap::new(),
-        held_reports: VecDeque::new(),
+        reports: HeldReports::new(HELD_REPORTS),
         round: Vec::new(),
     };
     let beats_link = session
@@ -151,6 +168,7 @@ pub fn run_actor_host(opts: &ActorHostOptions, stop: &StopFlag) -> Result<Bridge
                 Err(e) => refuse(&tally, &e),
             }
         }
+        busy |= out.acknowledge_reports(&report_acks);
         if let Some(bytes) = weights.take() {
             busy = true;
             publish_weights(&ipc, &bytes, &mut weights_out, &tally)?;
@@ -177,6 +195,8 @@ pub fn run_actor_host(opts: &ActorHostOptions, stop: &StopFlag) -> Result<Bridge
             learner_seen = alive;
             if alive {
                 tracing::info!("the learner host is on the link");
+                // What was on its way when it left may be lost: send every held report again.
+                out.reports.resend_all();
             } else {
                 Tally::add(&tally.hosts_gone, 1);
                 tracing::warn!(
@@ -207,8 +227,19 @@ pub fn run_actor_host(opts: &ActorHostOptions, stop: &StopFlag) -> Result<Bridge
             break;
         }
     }
-    if !out.held_reports.is_empty() {
-        tracing::warn!(reports = out.held_reports.len(), "episode reports never reached the learner host");
+    // Wait a little for the acknowledgement of the last reports (sending again what
+    // goes without one), so that none is left unconfirmed when the learner host is there.
+    let waited = Instant::now();
+    while !out.reports.is_empty() && learner_alive.load(Ordering::Relaxed) && waited.elapsed() < LAST_ACKS_WAIT {
+        out.acknowledge_reports(&report_acks);
+        out.forward(&steps_in, &episodes_in, true)?;
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    if !out.reports.is_empty() {
+        tracing::warn!(
+            reports = out.reports.len(),
+            "episode reports were not acknowledged by the learner host before this bridge stopped"
+        );
     }
     drop(out);
     let stats = tally.snapshot("actor-host", &opts.host, &opts.run);
@@ -224,9 +255,8 @@ struct Outbound<'a> {
     tally: &'a Tally,
     steps: HashMap<u32, zenoh::pubsub::Publisher<'static>>,
     episodes: HashMap<u32, zenoh::pubsub::Publisher<'static>>,
-    /// Reports (actor, encoded) waiting for the learner host: an episode report has no
-    /// acknowledgement and no resend, so it is not put on a link nobody reads.
-    held_reports: VecDeque<(u32, Vec<u8>)>,
+    /// Episode reports not yet acknowledged by the learner host.
+    reports: HeldReports,
     round: Vec<StepSample>,
 }
 
@@ -267,31 +297,49 @@ impl Outbound<'_> {
         Ok(any)
     }
 
-    /// Every new episode report, held; the held ones put on the link while the learner
-    /// host is there.
+    /// Every new episode report, held; the held ones that are due put on the link
+    /// while the learner host is there.
     fn forward_reports(&mut self, episodes: &EpisodeSubscriber, learner_alive: bool) -> Result<bool> {
         let mut busy = false;
         while let Some(sample) = episodes.receive().map_err(|e| BridgeError::Link(format!("episodes: {e:?}")))? {
             busy = true;
-            if self.held_reports.len() == HELD_REPORTS {
-                self.held_reports.pop_front();
-                Tally::add(&self.tally.not_delivered, 1);
-            }
             let h = sample.user_header();
-            self.held_reports.push_back((h.actor, wire::encode_episode(h, sample.payload())));
+            let bytes = wire::encode_episode(h, h.seq, sample.payload());
+            if self.reports.push(h.actor, h.incarnation, h.seq, bytes) {
+                Tally::add(&self.tally.reports_given_up, 1);
+            }
         }
-        while learner_alive && let Some((actor, bytes)) = self.held_reports.pop_front() {
-            busy = true;
-            let link = link_for(self.session, &mut self.episodes, actor, || self.keys.episodes(actor))?;
-            match link.put(bytes).wait() {
-                Ok(()) => Tally::add(&self.tally.episode_reports, 1),
+        if !learner_alive {
+            return Ok(busy);
+        }
+        let (session, keys, tally, links) = (self.session, self.keys, self.tally, &mut self.episodes);
+        let sent = self.reports.send_due(Instant::now(), REPORT_RESEND_AFTER, |actor, bytes| {
+            let put = link_for(session, links, actor, || keys.episodes(actor))
+                .and_then(|link| link.put(bytes.to_vec()).wait().map_err(link_err("episode report")));
+            match put {
+                Ok(()) => true,
                 Err(e) => {
-                    Tally::add(&self.tally.not_delivered, 1);
-                    tracing::warn!(actor, "an episode report was not put on the link: {e}");
+                    tracing::warn!(actor, "an episode report was not put on the link (it is sent again): {e}");
+                    false
                 }
             }
+        });
+        Tally::add(&tally.episode_reports, sent as u64);
+        Ok(busy || sent > 0)
+    }
+
+    /// Drop the held reports the learner host acknowledged; whether an
+    /// acknowledgement came.
+    fn acknowledge_reports(&mut self, slot: &Latest<ZBytes>) -> bool {
+        let Some(bytes) = slot.take() else { return false };
+        match wire::decode_report_acks(&bytes.to_bytes()) {
+            Ok(acks) => {
+                self.reports.acknowledge(&acks);
+                Tally::add(&self.tally.report_acks, 1);
+            }
+            Err(e) => refuse(self.tally, &e),
         }
-        Ok(busy)
+        true
     }
 }
 

@@ -77,10 +77,13 @@ pub struct Tally {
     pub step_records: AtomicU64,
     /// Their observation bytes.
     pub step_bytes: AtomicU64,
-    /// Episode reports moved.
+    /// Episode reports moved (an actor host counts every put on the link, reports
+    /// sent again included; the learner host those it published).
     pub episode_reports: AtomicU64,
-    /// Acknowledgement tables moved.
+    /// Acknowledgement tables (of step records) moved.
     pub ack_tables: AtomicU64,
+    /// Acknowledgements of episode reports moved.
+    pub report_acks: AtomicU64,
     /// Weights versions moved.
     pub weights: AtomicU64,
     /// Task requests answered across the link.
@@ -96,6 +99,12 @@ pub struct Tally {
     pub not_delivered: AtomicU64,
     /// Times a host's liveliness token was withdrawn.
     pub hosts_gone: AtomicU64,
+    /// Episode reports that came again after they were published (sent again before
+    /// their acknowledgement reached the actor host), dropped.
+    pub duplicate_reports: AtomicU64,
+    /// Episode reports the actor host gave up: its window of unacknowledged reports
+    /// overflowed while the learner host was away.
+    pub reports_given_up: AtomicU64,
 }
 
 impl Tally {
@@ -115,12 +124,15 @@ impl Tally {
             step_bytes: get(&self.step_bytes),
             episode_reports: get(&self.episode_reports),
             ack_tables: get(&self.ack_tables),
+            report_acks: get(&self.report_acks),
             weights: get(&self.weights),
             tasks: get(&self.tasks),
             heartbeats: get(&self.heartbeats),
             refused: get(&self.refused),
             not_delivered: get(&self.not_delivered),
             hosts_gone: get(&self.hosts_gone),
+            duplicate_reports: get(&self.duplicate_reports),
+            reports_given_up: get(&self.reports_given_up),
         }
     }
 }
@@ -139,12 +151,15 @@ pub struct BridgeStats {
     pub step_bytes: u64,
     pub episode_reports: u64,
     pub ack_tables: u64,
+    pub report_acks: u64,
     pub weights: u64,
     pub tasks: u64,
     pub heartbeats: u64,
     pub refused: u64,
     pub not_delivered: u64,
     pub hosts_gone: u64,
+    pub duplicate_reports: u64,
+    pub reports_given_up: u64,
 }
 
 /// The run a bridge serves: its directory, resolved config and local services.

@@ -7,6 +7,9 @@
 //! - the learner's acknowledgement tables → the link (*Drop*: the next table replaces
 //!   a lost one), and the weights → the link (*Block*), the newest kept to answer a
 //!   host that asks for it when it joins;
+//! - the acknowledgements of the remote actors' episode reports → the link, every
+//!   [`REPORT_ACKS_EVERY`] (*Drop*: they are cumulative, the next replaces a lost one;
+//!   [`crate::reports`]);
 //! - task requests ← the link, asked of the local curriculum service and answered;
 //! - heartbeats both ways: the learner's and the curriculum service's out, the remote
 //!   actors' in (the progress line counts them, and the learner reads from them what a
@@ -48,6 +51,8 @@ const TASKS_IN_FLIGHT: usize = 8;
 /// How long a task request waits for the curriculum service before it is dropped
 /// (the remote actor asks again).
 const TASK_TIMEOUT: Duration = Duration::from_secs(5);
+/// How often the episode report acknowledgements are sent.
+const REPORT_ACKS_EVERY: Duration = Duration::from_millis(250);
 /// How often the learner's done marker is looked for, and the run's end said again
 /// once it is over.
 const DONE_EVERY: Duration = Duration::from_millis(500);
@@ -150,6 +155,11 @@ pub fn run_learner_host(opts: &LearnerHostOptions, stop: &StopFlag) -> Result<Br
         .congestion_control(CongestionControl::Block)
         .wait()
         .map_err(link_err("weights publisher"))?;
+    let report_acks_link = session
+        .declare_publisher(keys.report_acks())
+        .congestion_control(CongestionControl::Drop)
+        .wait()
+        .map_err(link_err("episode report acknowledgement publisher"))?;
     let beats_link = session
         .declare_publisher(keys.heartbeats(LEARNER_HOST))
         .congestion_control(CongestionControl::Drop)
@@ -157,7 +167,7 @@ pub fn run_learner_host(opts: &LearnerHostOptions, stop: &StopFlag) -> Result<Br
         .map_err(link_err("heartbeat publisher"))?;
 
     let mut tasks = TaskDesk { waiting: VecDeque::new(), in_flight: Vec::new() };
-    let (mut last_stats, mut last_done) = (Instant::now(), Instant::now());
+    let (mut last_stats, mut last_done, mut last_report_acks) = (Instant::now(), Instant::now(), Instant::now());
     tracing::info!(%run, listen = ?opts.link.listen, local_actors = opts.local_actors, "learner-host bridge up");
 
     while !stop.is_set() {
@@ -226,6 +236,13 @@ pub fn run_learner_host(opts: &LearnerHostOptions, stop: &StopFlag) -> Result<Br
                 tracing::warn!(%host, actors = %ids, "a host left the link: its actors are gone until it is back");
             }
         }
+        if last_report_acks.elapsed() >= REPORT_ACKS_EVERY {
+            last_report_acks = Instant::now();
+            let acks = remote.report_acks();
+            if !acks.is_empty() && report_acks_link.put(wire::encode_report_acks(&acks)).wait().is_ok() {
+                Tally::add(&tally.report_acks, 1);
+            }
+        }
         if last_done.elapsed() >= DONE_EVERY {
             last_done = Instant::now();
             let _ = say_done(&session, &keys, &local);
@@ -245,7 +262,14 @@ pub fn run_learner_host(opts: &LearnerHostOptions, stop: &StopFlag) -> Result<Br
     }
     // No callback may hand a worker anything once the workers are joined.
     drop(declared);
-    remote.join();
+    // The last acknowledgements, so an actor host still up drops what was published.
+    let acks = remote.join();
+    if !acks.is_empty() {
+        let _ = session
+            .put(keys.report_acks(), wire::encode_report_acks(&acks))
+            .congestion_control(CongestionControl::Block)
+            .wait();
+    }
     let stats = tally.snapshot("learner-host", LEARNER_HOST, &run);
     local.write_stats(&stats);
     crate::link::close(session);

@@ -12,9 +12,10 @@
 //! - [`learner_host`] and [`actor_host`]: the two bridges, each a loop between its
 //!   host's iceoryx2 services and the link (`pednav-run bridge` runs one).
 //!
-//! Losslessness across hosts is not here but in `pednav_runtime::reliable`: step
-//! records carry (actor, incarnation, seq, base) and the learner's acknowledgements
-//! travel back, whatever carries them.
+//! Losslessness of step records across hosts is not here but in
+//! `pednav_runtime::reliable`: step records carry (actor, incarnation, seq, base) and
+//! the learner's acknowledgements travel back, whatever carries them. Episode reports
+//! are acknowledged between the two bridges (`reports`).
 
 #![warn(missing_docs)]
 
@@ -26,6 +27,7 @@ pub mod join;
 pub mod learner_host;
 pub mod link;
 mod remote;
+mod reports;
 pub mod wire;
 
 pub use actor_host::{ActorHostOptions, run_actor_host};
@@ -34,4 +36,4 @@ pub use forward::{BridgeStats, LEARNER_HOST};
 pub use hosts::{Host, HostTable};
 pub use join::{JoinGrant, JoinRequest, request_join};
 pub use learner_host::{LearnerHostOptions, run_learner_host, run_name};
-pub use link::{Keys, LinkConfig};
+pub use link::{Keys, LinkConfig, TlsFiles};

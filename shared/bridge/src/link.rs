@@ -5,9 +5,13 @@
 //! - a session opened here never scouts: multicast and gossip scouting are off (they
 //!   send to addresses nobody named); it listens only on its `listen` endpoints and
 //!   connects only to its `connect` endpoints;
-//! - every endpoint is checked before a session opens — `tcp/HOST:PORT`, no multicast
-//!   address, no port 0 or unspecified address to connect to — and a refusal names the
-//!   flag and the endpoint;
+//! - every endpoint is checked before a session opens — `tcp/HOST:PORT` (or
+//!   `tls/HOST:PORT` with [`TlsFiles`], and then only `tls/`), no multicast address,
+//!   no port 0 or unspecified address to connect to — and a refusal names the flag and
+//!   the endpoint;
+//! - TLS is always mutual: each host presents a certificate signed by the run's CA and
+//!   accepts only a peer whose certificate that CA signed; a connecting host also checks
+//!   that the learner host's certificate names the host it connects to;
 //! - every key lives under `pednav/<run>/`, so two runs sharing a network never see
 //!   each other's messages.
 //!
@@ -18,10 +22,31 @@
 //! acknowledgements make the stream whole.
 
 use std::net::IpAddr;
+use std::path::PathBuf;
 
 use zenoh::Wait;
 
 use crate::error::{BridgeError, Result};
+
+/// The files of a host's mutual TLS (PEM): every host of a run has a certificate
+/// signed by the same CA.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct TlsFiles {
+    /// The CA certificate that signed every host's certificate (`--tls-ca`).
+    pub ca: PathBuf,
+    /// This host's certificate (`--tls-cert`); the learner host's must name the host
+    /// (DNS name or IP address) that actor hosts connect to.
+    pub certificate: PathBuf,
+    /// This host's private key (`--tls-key`; PKCS#8, SEC1 or PKCS#1).
+    pub key: PathBuf,
+}
+
+impl TlsFiles {
+    /// Each file with the flag that names it.
+    fn flagged(&self) -> [(&'static str, &PathBuf); 3] {
+        [("--tls-ca", &self.ca), ("--tls-cert", &self.certificate), ("--tls-key", &self.key)]
+    }
+}
 
 /// Where a host's session listens and what it connects to.
 #[derive(Debug, Clone, Default, PartialEq, Eq)]
@@ -37,18 +62,32 @@ pub struct LinkConfig {
     /// keeps trying in the background (a bridge, which waits out a learner host that
     /// restarts; zenoh reconnects a dropped link to its `connect` endpoints by itself).
     pub fail_unreached: bool,
+    /// Mutual TLS (endpoints `tls/…`), or plain TCP (`None`, endpoints `tcp/…`).
+    pub tls: Option<TlsFiles>,
 }
 
 impl LinkConfig {
     /// A session that listens on `listen` (the learner host).
     pub fn listening(listen: &[String]) -> LinkConfig {
-        LinkConfig { listen: listen.to_vec(), connect: Vec::new(), connect_timeout_ms: 10_000, fail_unreached: true }
+        LinkConfig {
+            listen: listen.to_vec(),
+            connect: Vec::new(),
+            connect_timeout_ms: 10_000,
+            fail_unreached: true,
+            tls: None,
+        }
     }
 
     /// A session that connects to `connect` (an actor host); opening it fails when
     /// the learner host is not reached within 10 s.
     pub fn connecting(connect: &[String]) -> LinkConfig {
-        LinkConfig { listen: Vec::new(), connect: connect.to_vec(), connect_timeout_ms: 10_000, fail_unreached: true }
+        LinkConfig {
+            listen: Vec::new(),
+            connect: connect.to_vec(),
+            connect_timeout_ms: 10_000,
+            fail_unreached: true,
+            tls: None,
+        }
     }
 
     /// This link, but opening it waits at most `connect_timeout_ms` for the learner
@@ -59,16 +98,40 @@ impl LinkConfig {
         self
     }
 
-    /// Check every endpoint (see [`check_endpoint`]) and that there is at least one.
+    /// This link with mutual TLS (`Some`) or plain TCP.
+    #[must_use]
+    pub fn with_tls(mut self, tls: Option<TlsFiles>) -> LinkConfig {
+        self.tls = tls;
+        self
+    }
+
+    /// Check every endpoint (see [`check_endpoint`]), that there is at least one, that
+    /// TLS files come with `tls/` endpoints and `tls/` endpoints with TLS files, and
+    /// that each TLS file can be read.
     pub fn check(&self) -> Result<()> {
         if self.listen.is_empty() && self.connect.is_empty() {
             return Err(BridgeError::Link("a link needs --listen or --connect endpoints".into()));
         }
-        for e in &self.listen {
-            check_endpoint("--listen", e)?;
+        let flagged = self.listen.iter().map(|e| ("--listen", e)).chain(self.connect.iter().map(|e| ("--connect", e)));
+        for (flag, e) in flagged {
+            check_endpoint(flag, e)?;
+            let refuse = |problem: &str| {
+                Err(BridgeError::Endpoint { flag: flag.to_string(), endpoint: e.clone(), problem: problem.into() })
+            };
+            match (&self.tls, e.starts_with("tls/")) {
+                (None, true) => return refuse("a tls/ endpoint needs --tls-ca, --tls-cert and --tls-key"),
+                (Some(_), false) => {
+                    return refuse(
+                        "with --tls-ca/--tls-cert/--tls-key use tls/HOST:PORT (tcp/ would carry the run unencrypted)",
+                    );
+                }
+                _ => {}
+            }
         }
-        for e in &self.connect {
-            check_endpoint("--connect", e)?;
+        for (flag, path) in self.tls.iter().flat_map(TlsFiles::flagged) {
+            if let Err(e) = std::fs::File::open(path) {
+                return Err(BridgeError::Link(format!("{flag} {}: cannot be read ({e})", path.display())));
+            }
         }
         Ok(())
     }
@@ -91,7 +154,19 @@ impl LinkConfig {
             ("connect/timeout_ms", self.connect_timeout_ms.to_string()),
             ("connect/exit_on_failure", self.fail_unreached.to_string()),
         ];
-        for (key, value) in settings {
+        let tls_settings = self.tls.iter().flat_map(|t| {
+            let file = |p: &PathBuf| format!("{:?}", p.display().to_string());
+            [
+                ("transport/link/tls/root_ca_certificate", file(&t.ca)),
+                ("transport/link/tls/listen_certificate", file(&t.certificate)),
+                ("transport/link/tls/listen_private_key", file(&t.key)),
+                ("transport/link/tls/connect_certificate", file(&t.certificate)),
+                ("transport/link/tls/connect_private_key", file(&t.key)),
+                ("transport/link/tls/enable_mtls", "true".to_string()),
+                ("transport/link/tls/verify_name_on_connect", "true".to_string()),
+            ]
+        });
+        for (key, value) in settings.into_iter().chain(tls_settings) {
             c.insert_json5(key, &value)
                 .map_err(|e| BridgeError::Link(format!("zenoh setting {key} = {value} refused: {e}")))?;
         }
@@ -106,10 +181,15 @@ impl LinkConfig {
                 "could not open the link (listen {:?}, connect {:?}): {e}{}",
                 self.listen,
                 self.connect,
-                if self.connect.is_empty() {
-                    " — is the port in use?"
-                } else {
-                    " — is `pednav-run launch --listen …` running there, and the port open?"
+                match (self.connect.is_empty(), self.tls.is_some()) {
+                    (true, false) => " — is the port in use?",
+                    (true, true) => " — is the port in use, and are --tls-cert and --tls-key a certificate and its key?",
+                    (false, false) => " — is `pednav-run launch --listen …` running there, and the port open?",
+                    (false, true) => {
+                        " — is `pednav-run launch --listen tls/…` running there, and the port open? With TLS: were both \
+                         hosts' certificates signed by the same --tls-ca, and does the learner host's name the host \
+                         in --connect?"
+                    }
                 }
             ))
         })
@@ -130,8 +210,8 @@ pub fn check_endpoint(flag: &str, endpoint: &str) -> Result<()> {
     let refuse = |problem: &str| {
         Err(BridgeError::Endpoint { flag: flag.to_string(), endpoint: endpoint.to_string(), problem: problem.into() })
     };
-    let Some(address) = endpoint.strip_prefix("tcp/") else {
-        return refuse("use tcp/HOST:PORT (TCP is the one transport this build carries)");
+    let Some(address) = endpoint.strip_prefix("tcp/").or_else(|| endpoint.strip_prefix("tls/")) else {
+        return refuse("use tcp/HOST:PORT, or tls/HOST:PORT with --tls-ca, --tls-cert and --tls-key");
     };
     if address.contains(['#', '?']) {
         return refuse("endpoint options (after '#' or '?') are not supported");
@@ -203,6 +283,11 @@ impl Keys {
     /// The learner's acknowledgements.
     pub fn acks(&self) -> String {
         format!("{}/acks", self.root)
+    }
+
+    /// The learner host's acknowledgements of episode reports.
+    pub fn report_acks(&self) -> String {
+        format!("{}/episode-acks", self.root)
     }
 
     /// The policy weights (published, and queryable for the newest).
@@ -309,6 +394,111 @@ mod tests {
         std::net::TcpListener::bind("127.0.0.1:0").unwrap().local_addr().unwrap().port()
     }
 
+    /// A step record put by `actor` until `learner` receives one (bounded by `within`):
+    /// the subscription reaches the other session some time after it is declared.
+    fn first_record(
+        learner: &zenoh::Session,
+        actor: &zenoh::Session,
+        keys: &Keys,
+        within: Duration,
+    ) -> Option<Vec<u8>> {
+        let (tx, rx) = mpsc::channel::<Vec<u8>>();
+        let _steps = learner
+            .declare_subscriber(keys.all_steps())
+            .callback(move |s| {
+                let _ = tx.send(s.payload().to_bytes().into_owned());
+            })
+            .wait()
+            .unwrap();
+        let header = StepHeader { actor: 3, incarnation: 1, seq: 41, base: 40, ..StepHeader::default() };
+        let record = wire::encode_step(&header, &[7u8; 42]);
+        let publisher = actor
+            .declare_publisher(keys.steps(3))
+            .congestion_control(zenoh::qos::CongestionControl::Block)
+            .wait()
+            .unwrap();
+        let deadline = Instant::now() + within;
+        while Instant::now() < deadline {
+            publisher.put(record.clone()).wait().unwrap();
+            if let Ok(bytes) = rx.recv_timeout(Duration::from_millis(100)) {
+                return Some(bytes);
+            }
+        }
+        None
+    }
+
+    /// The test certificates (`testdata/tls`, made by its `make.sh`): `host`'s
+    /// certificate and key, and the CA that signed the two test hosts'.
+    fn tls(host: &str) -> TlsFiles {
+        let dir = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("testdata/tls");
+        TlsFiles {
+            ca: dir.join("ca.pem"),
+            certificate: dir.join(format!("{host}.pem")),
+            key: dir.join(format!("{host}.key")),
+        }
+    }
+
+    #[test]
+    fn tls_endpoints_and_tls_files_come_together() {
+        let err = LinkConfig::connecting(&["tls/127.0.0.1:7447".into()]).check().unwrap_err().to_string();
+        assert!(err.contains("tls/127.0.0.1:7447") && err.contains("--tls-ca"), "{err}");
+        let plain = LinkConfig::listening(&["tcp/0.0.0.0:7447".into()]).with_tls(Some(tls("learner-host")));
+        let err = plain.check().unwrap_err().to_string();
+        assert!(err.contains("--listen") && err.contains("use tls/HOST:PORT"), "{err}");
+        let mut missing = tls("actor-host");
+        missing.key = missing.key.with_file_name("no-such.key");
+        let err = LinkConfig::connecting(&["tls/127.0.0.1:7447".into()]).with_tls(Some(missing)).check().unwrap_err();
+        assert!(err.to_string().contains("--tls-key") && err.to_string().contains("no-such.key"), "{err}");
+
+        let link = LinkConfig::connecting(&["tls/localhost:7447".into()]).with_tls(Some(tls("actor-host")));
+        let c = link.zenoh_config().unwrap();
+        assert_eq!(c.get_json("transport/link/tls/enable_mtls").unwrap(), "true");
+        assert_eq!(c.get_json("transport/link/tls/verify_name_on_connect").unwrap(), "true");
+        assert!(c.get_json("transport/link/tls/root_ca_certificate").unwrap().contains("ca.pem"));
+        assert!(c.get_json("transport/link/tls/connect_private_key").unwrap().contains("actor-host.key"));
+    }
+
+    /// Mutual TLS on loopback: two hosts whose certificates the run's CA signed carry a
+    /// record; a host with another CA's certificate gets nothing across, and an actor
+    /// host refuses a "learner host" whose certificate the run's CA did not sign.
+    #[test]
+    fn a_tls_link_carries_records_between_the_runs_hosts_only() {
+        let endpoint = format!("tls/127.0.0.1:{}", free_port());
+        let learner = LinkConfig::listening(std::slice::from_ref(&endpoint)).with_tls(Some(tls("learner-host")));
+        let learner = learner.open().unwrap();
+        let actor = LinkConfig::connecting(std::slice::from_ref(&endpoint)).with_tls(Some(tls("actor-host")));
+        let actor = actor.open().unwrap();
+        let keys = Keys::new("tls-test").unwrap();
+        let got =
+            first_record(&learner, &actor, &keys, Duration::from_secs(20)).expect("a record crossed the TLS link");
+        assert_eq!(wire::decode_step(&got).unwrap().0.seq, 41);
+        actor.close().wait().unwrap();
+
+        // A client certificate from another CA: the learner host refuses the handshake.
+        let mut stranger = LinkConfig::connecting(std::slice::from_ref(&endpoint)).with_tls(Some(tls("stranger")));
+        stranger.connect_timeout_ms = 3_000;
+        match stranger.open() {
+            Err(e) => assert!(e.to_string().contains("same --tls-ca"), "{e}"),
+            Ok(session) => {
+                let crossed = first_record(&learner, &session, &keys, Duration::from_secs(3));
+                assert!(crossed.is_none(), "a host with another CA's certificate got a record across");
+                session.close().wait().unwrap();
+            }
+        }
+        learner.close().wait().unwrap();
+
+        // A listener whose certificate another CA signed: the actor host refuses it.
+        let endpoint = format!("tls/127.0.0.1:{}", free_port());
+        // It trusts the run's CA but presents a certificate another CA signed.
+        let impostor = LinkConfig::listening(std::slice::from_ref(&endpoint)).with_tls(Some(tls("stranger")));
+        let impostor = impostor.open().unwrap();
+        let mut actor = LinkConfig::connecting(std::slice::from_ref(&endpoint)).with_tls(Some(tls("actor-host")));
+        actor.connect_timeout_ms = 3_000;
+        let err = actor.open().map(|_| ()).unwrap_err().to_string();
+        assert!(err.contains("could not open the link") && err.contains("same --tls-ca"), "{err}");
+        impostor.close().wait().unwrap();
+    }
+
     /// Two sessions on loopback — one listening, one connecting, nothing scouted —
     /// carry a step record, and a host's liveliness token disappears when its session
     /// closes. Loops are bounded in count and time.
@@ -320,14 +510,6 @@ mod tests {
         let actor = LinkConfig::connecting(&[endpoint]).open().unwrap();
         let keys = Keys::new("loopback-test").unwrap();
 
-        let (tx, rx) = mpsc::channel::<Vec<u8>>();
-        let _steps = learner
-            .declare_subscriber(keys.all_steps())
-            .callback(move |s| {
-                let _ = tx.send(s.payload().to_bytes().into_owned());
-            })
-            .wait()
-            .unwrap();
         let (alive_tx, alive_rx) = mpsc::channel::<(String, SampleKind)>();
         let _hosts = learner
             .liveliness()
@@ -340,23 +522,7 @@ mod tests {
             .unwrap();
 
         let _token = actor.liveliness().declare_token(keys.alive("gpu-a")).wait().unwrap();
-        let header = StepHeader { actor: 3, incarnation: 1, seq: 41, base: 40, ..StepHeader::default() };
-        let record = wire::encode_step(&header, &[7u8; 42]);
-        let publisher = actor
-            .declare_publisher(keys.steps(3))
-            .congestion_control(zenoh::qos::CongestionControl::Block)
-            .wait()
-            .unwrap();
-        // The subscription reaches the actor's session some time after it is declared:
-        // send until one arrives (bounded).
-        let deadline = Instant::now() + Duration::from_secs(20);
-        let got = loop {
-            publisher.put(record.clone()).wait().unwrap();
-            if let Ok(bytes) = rx.recv_timeout(Duration::from_millis(100)) {
-                break bytes;
-            }
-            assert!(Instant::now() < deadline, "no record crossed the link within 20 s");
-        };
+        let got = first_record(&learner, &actor, &keys, Duration::from_secs(20)).expect("a record crossed the link");
         let (h, obs) = wire::decode_step(&got).unwrap();
         assert_eq!((h.actor, h.incarnation, h.seq, h.base), (3, 1, 41, 40));
         assert_eq!(obs, &[7u8; 42]);

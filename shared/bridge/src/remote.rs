@@ -11,8 +11,13 @@
 //! - a worker's backlog is bounded: step records that arrive while it holds
 //!   [`WorkerSetup::backlog`] of them (a stalled learner, and an actor that sends its
 //!   whole window again every few seconds) are dropped and counted — their actor holds
-//!   each until a learner acknowledges it and sends it again when asked. Episode
-//!   reports are never dropped here.
+//!   each until a learner acknowledges it and sends it again when asked; so are
+//!   episode reports beyond [`REPORT_BACKLOG`] (a curriculum service that is gone,
+//!   while the actor host sends its held reports again every two seconds) — their
+//!   actor host holds each until it is acknowledged;
+//! - an episode report is published at most once per worker's life: each worker keeps
+//!   its actor's [`ReportCursor`], whose acknowledgements the bridge sends back
+//!   ([`RemoteActors::report_acks`]), and drops a report that arrives again.
 
 use std::collections::HashMap;
 use std::sync::atomic::{AtomicUsize, Ordering};
@@ -26,7 +31,8 @@ use zenoh::bytes::ZBytes;
 
 use crate::error::{BridgeError, Result};
 use crate::forward::{Tally, refuse};
-use crate::wire;
+use crate::reports::ReportCursor;
+use crate::wire::{self, ReportAck};
 
 /// A message from the link for one remote actor.
 pub(crate) enum Inbound {
@@ -55,12 +61,32 @@ pub(crate) struct WorkerSetup {
     pub tally: Arc<Tally>,
 }
 
+/// Episode reports a worker may hold unpublished.
+const REPORT_BACKLOG: usize = 1024;
+
+/// Messages handed to a worker and not yet published.
+#[derive(Default)]
+struct Queued {
+    steps: AtomicUsize,
+    reports: AtomicUsize,
+}
+
+/// One remote actor's worker, as the callbacks and the bridge's loop see it.
+struct Worker {
+    /// Where its messages go.
+    tx: Sender<Inbound>,
+    /// What it holds unpublished.
+    queued: Arc<Queued>,
+    /// Which of its actor's episode reports it published.
+    reports: Arc<Mutex<ReportCursor>>,
+}
+
 /// The remote actors' workers, started on an actor's first message; shared with the
 /// zenoh callbacks (which only send into a channel).
 #[derive(Clone)]
 pub(crate) struct RemoteActors {
     setup: WorkerSetup,
-    workers: Arc<Mutex<HashMap<u32, (Sender<Inbound>, Arc<AtomicUsize>)>>>,
+    workers: Arc<Mutex<HashMap<u32, Worker>>>,
     threads: Arc<Mutex<Vec<std::thread::JoinHandle<()>>>>,
 }
 
@@ -87,44 +113,72 @@ impl RemoteActors {
             }
         };
         let mut workers = self.workers.lock().unwrap_or_else(|p| p.into_inner());
-        let (tx, queued) = workers.entry(actor).or_insert_with(|| {
+        let worker = workers.entry(actor).or_insert_with(|| {
             let (tx, rx) = mpsc::channel();
-            let queued = Arc::new(AtomicUsize::new(0));
+            let queued = Arc::new(Queued::default());
+            let reports = Arc::new(Mutex::new(ReportCursor::default()));
             let setup = self.setup.clone();
-            let counter = queued.clone();
+            let (counter, cursor) = (queued.clone(), reports.clone());
             let handle = std::thread::Builder::new()
                 .name(format!("remote-actor-{actor}"))
                 .spawn(move || {
-                    if let Err(e) = run_worker(&setup, actor, &rx, &counter) {
+                    if let Err(e) = run_worker(&setup, actor, &rx, &counter, &cursor) {
                         tracing::error!(actor, "the remote actor's forwarding stopped: {e}");
                     }
                 })
                 .expect("a thread starts");
             self.threads.lock().unwrap_or_else(|p| p.into_inner()).push(handle);
             tracing::info!(actor, "first message from a remote actor");
-            (tx, queued)
+            Worker { tx, queued, reports }
         });
-        if let Inbound::Step(_) = message {
-            if queued.load(Ordering::Relaxed) >= self.setup.backlog {
-                Tally::add(&self.setup.tally.not_delivered, 1);
-                return;
-            }
-            queued.fetch_add(1, Ordering::Relaxed);
+        let (count, bound) = match message {
+            Inbound::Step(_) => (&worker.queued.steps, self.setup.backlog),
+            Inbound::Episode(_) => (&worker.queued.reports, REPORT_BACKLOG),
+        };
+        if count.load(Ordering::Relaxed) >= bound {
+            Tally::add(&self.setup.tally.not_delivered, 1);
+            return;
         }
-        let _ = tx.send(message);
+        count.fetch_add(1, Ordering::Relaxed);
+        let _ = worker.tx.send(message);
     }
 
-    /// Close every worker's channel and wait for the threads (after `stop`).
-    pub(crate) fn join(&self) {
-        self.workers.lock().unwrap_or_else(|p| p.into_inner()).clear();
+    /// Every remote actor's episode report acknowledgements, by actor id.
+    pub(crate) fn report_acks(&self) -> Vec<ReportAck> {
+        let workers = self.workers.lock().unwrap_or_else(|p| p.into_inner());
+        report_acks(workers.iter().map(|(&actor, w)| (actor, &w.reports)))
+    }
+
+    /// Close every worker's channel and wait for the threads (after `stop`); the
+    /// acknowledgements of everything they published, to the last report.
+    pub(crate) fn join(&self) -> Vec<ReportAck> {
+        let workers = std::mem::take(&mut *self.workers.lock().unwrap_or_else(|p| p.into_inner()));
+        let cursors: Vec<(u32, Arc<Mutex<ReportCursor>>)> =
+            workers.into_iter().map(|(actor, w)| (actor, w.reports)).collect();
         let threads = std::mem::take(&mut *self.threads.lock().unwrap_or_else(|p| p.into_inner()));
         for t in threads {
             let _ = t.join();
         }
+        report_acks(cursors.iter().map(|(actor, c)| (*actor, c)))
     }
 }
 
-fn run_worker(setup: &WorkerSetup, actor: u32, rx: &Receiver<Inbound>, queued: &AtomicUsize) -> Result<()> {
+/// The acknowledgements of these actors' cursors, by actor id and incarnation.
+fn report_acks<'a>(cursors: impl Iterator<Item = (u32, &'a Arc<Mutex<ReportCursor>>)>) -> Vec<ReportAck> {
+    let mut acks: Vec<ReportAck> = cursors
+        .flat_map(|(actor, c)| c.lock().unwrap_or_else(|p| p.into_inner()).acks(actor).collect::<Vec<_>>())
+        .collect();
+    acks.sort_by_key(|a| (a.actor, a.incarnation));
+    acks
+}
+
+fn run_worker(
+    setup: &WorkerSetup,
+    actor: u32,
+    rx: &Receiver<Inbound>,
+    queued: &Queued,
+    reports: &Mutex<ReportCursor>,
+) -> Result<()> {
     let ipc = pednav_runtime::Ipc::new(
         &setup.prefix,
         &format!("bridge-actor-{actor}"),
@@ -142,10 +196,13 @@ fn run_worker(setup: &WorkerSetup, actor: u32, rx: &Receiver<Inbound>, queued: &
         };
         let result = match message {
             Inbound::Step(bytes) => {
-                queued.fetch_sub(1, Ordering::Relaxed);
+                queued.steps.fetch_sub(1, Ordering::Relaxed);
                 publish_step(setup, actor, &steps, &bytes)
             }
-            Inbound::Episode(bytes) => publish_episode(setup, actor, &episodes, &bytes),
+            Inbound::Episode(bytes) => {
+                queued.reports.fetch_sub(1, Ordering::Relaxed);
+                publish_episode(setup, actor, &episodes, reports, &bytes)
+            }
         };
         if let Err(e) = result {
             refuse(&setup.tally, &e);
@@ -180,12 +237,27 @@ fn publish_step(setup: &WorkerSetup, actor: u32, steps: &StepSender, bytes: &ZBy
     Ok(())
 }
 
-/// Publish one episode report from the link through the actor's local publisher.
-fn publish_episode(setup: &WorkerSetup, actor: u32, episodes: &EpisodeSender, bytes: &ZBytes) -> Result<()> {
+/// Publish one episode report from the link through the actor's local publisher,
+/// unless it was published before (it came again: its acknowledgement had not reached
+/// the actor host yet).
+fn publish_episode(
+    setup: &WorkerSetup,
+    actor: u32,
+    episodes: &EpisodeSender,
+    reports: &Mutex<ReportCursor>,
+    bytes: &ZBytes,
+) -> Result<()> {
     let bytes = bytes.to_bytes();
-    let (header, points) = wire::decode_episode(&bytes)?;
+    let (header, low_water, points) = wire::decode_episode(&bytes)?;
     check_sender(actor, header.actor, "episode report")?;
+    let cursor = || reports.lock().unwrap_or_else(|p| p.into_inner());
+    if !cursor().is_new(header.incarnation, header.seq, low_water) {
+        Tally::add(&setup.tally.duplicate_reports, 1);
+        return Ok(());
+    }
     if points.len() > setup.max_points {
+        // Refused for good: acknowledged, so that it is not sent again.
+        cursor().handled(header.incarnation, header.seq);
         return Err(BridgeError::Malformed {
             kind: "episode report",
             problem: format!(
@@ -196,8 +268,10 @@ fn publish_episode(setup: &WorkerSetup, actor: u32, episodes: &EpisodeSender, by
         });
     }
     if episodes.publish(header, &points, &setup.stop, setup.give_up)? {
+        cursor().handled(header.incarnation, header.seq);
         Tally::add(&setup.tally.episode_reports, 1);
     } else {
+        // Not acknowledged: the actor host sends it again.
         Tally::add(&setup.tally.not_delivered, 1);
     }
     Ok(())

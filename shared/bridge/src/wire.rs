@@ -26,8 +26,9 @@ use pednav_sim::STATE_OBS_DIM;
 
 use crate::error::{BridgeError, Result};
 
-/// The wire version this build reads and writes.
-pub const VERSION: u8 = 1;
+/// The wire version this build reads and writes (2: episode reports carry the
+/// sender's low-water mark and are acknowledged, [`Kind::ReportAcks`]).
+pub const VERSION: u8 = 2;
 
 /// What a message is: its first byte.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -47,12 +48,35 @@ pub enum Kind {
     TaskResponse = 6,
     /// A process's [`Heartbeat`].
     Heartbeat = 7,
+    /// The learner host's acknowledgements of episode reports ([`ReportAck`]s).
+    ReportAcks = 8,
+}
+
+/// One entry of a [`Kind::ReportAcks`] message: every episode report of `actor`'s
+/// incarnation `incarnation` numbered below `next` has been handled (published on
+/// the learner host, or given up by its sender) and need not be sent again.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct ReportAck {
+    /// Global actor id.
+    pub actor: u32,
+    /// The actor process's incarnation.
+    pub incarnation: u32,
+    /// Reports numbered below this are handled.
+    pub next: u64,
 }
 
 impl Kind {
     /// Every kind, in code order.
-    pub const ALL: [Kind; 7] =
-        [Kind::Step, Kind::Episode, Kind::Acks, Kind::Weights, Kind::TaskRequest, Kind::TaskResponse, Kind::Heartbeat];
+    pub const ALL: [Kind; 8] = [
+        Kind::Step,
+        Kind::Episode,
+        Kind::Acks,
+        Kind::Weights,
+        Kind::TaskRequest,
+        Kind::TaskResponse,
+        Kind::Heartbeat,
+        Kind::ReportAcks,
+    ];
 
     /// The kind's name in errors and logs.
     pub fn name(self) -> &'static str {
@@ -64,6 +88,7 @@ impl Kind {
             Kind::TaskRequest => "task request",
             Kind::TaskResponse => "task response",
             Kind::Heartbeat => "heartbeat",
+            Kind::ReportAcks => "episode report acknowledgement",
         }
     }
 
@@ -265,9 +290,16 @@ pub fn decode_step(bytes: &[u8]) -> Result<(StepHeader, &[u8])> {
     Ok((h, observation))
 }
 
-/// An episode report: its header, then its points.
-pub fn encode_episode(h: &EpisodeHeader, points: &[EpisodePoint]) -> Vec<u8> {
-    let mut e = Enc::new(Kind::Episode, 64 + 16 * points.len());
+/// Where an episode report's low-water mark sits: right after the kind and version
+/// bytes, so a held report is restamped in place before it is sent again.
+const LOW_WATER_AT: usize = 2;
+
+/// An episode report: the sender's low-water mark (the lowest report number of this
+/// actor incarnation it still holds: every report below it was acknowledged or given
+/// up), its header, then its points.
+pub fn encode_episode(h: &EpisodeHeader, low_water: u64, points: &[EpisodePoint]) -> Vec<u8> {
+    let mut e = Enc::new(Kind::Episode, 72 + 16 * points.len());
+    e.u64(low_water);
     e.u32(h.actor);
     e.u32(h.env);
     e.u32(h.incarnation);
@@ -286,9 +318,19 @@ pub fn encode_episode(h: &EpisodeHeader, points: &[EpisodePoint]) -> Vec<u8> {
     e.0
 }
 
-/// The header and points of an [`encode_episode`] message.
-pub fn decode_episode(bytes: &[u8]) -> Result<(EpisodeHeader, Vec<EpisodePoint>)> {
+/// Rewrite the low-water mark of an [`encode_episode`] message in place (a no-op on
+/// bytes too short to be one).
+pub fn restamp_low_water(bytes: &mut [u8], low_water: u64) {
+    if let Some(field) = bytes.get_mut(LOW_WATER_AT..LOW_WATER_AT + 8) {
+        field.copy_from_slice(&low_water.to_le_bytes());
+    }
+}
+
+/// The header, the sender's low-water mark and the points of an [`encode_episode`]
+/// message.
+pub fn decode_episode(bytes: &[u8]) -> Result<(EpisodeHeader, u64, Vec<EpisodePoint>)> {
     let mut d = Dec::open(Kind::Episode, bytes)?;
+    let low_water = d.u64("low_water")?;
     let h = EpisodeHeader {
         actor: d.u32("actor")?,
         env: d.u32("env")?,
@@ -309,7 +351,35 @@ pub fn decode_episode(bytes: &[u8]) -> Result<(EpisodeHeader, Vec<EpisodePoint>)
         points.push(EpisodePoint { x, y, yaw, reward });
     }
     d.finish()?;
-    Ok((h, points))
+    Ok((h, low_water, points))
+}
+
+/// The learner host's episode report acknowledgements.
+pub fn encode_report_acks(acks: &[ReportAck]) -> Vec<u8> {
+    let mut e = Enc::new(Kind::ReportAcks, 8 + 16 * acks.len());
+    e.u64(acks.len() as u64);
+    for a in acks {
+        e.u32(a.actor);
+        e.u32(a.incarnation);
+        e.u64(a.next);
+    }
+    e.0
+}
+
+/// The entries of an [`encode_report_acks`] message.
+pub fn decode_report_acks(bytes: &[u8]) -> Result<Vec<ReportAck>> {
+    let mut d = Dec::open(Kind::ReportAcks, bytes)?;
+    let n = d.count(16, "entries")?;
+    let mut acks = Vec::with_capacity(n);
+    for _ in 0..n {
+        let a = ReportAck { actor: d.u32("actor")?, incarnation: d.u32("incarnation")?, next: d.u64("next")? };
+        if a.actor as usize >= MAX_ACTORS {
+            return Err(d.malformed(format!("actor {}: this build has actor ids below {MAX_ACTORS}", a.actor)));
+        }
+        acks.push(a);
+    }
+    d.finish()?;
+    Ok(acks)
 }
 
 /// The learner's acknowledgements: the entries of actors it has seen (incarnation ≠ 0).
@@ -522,6 +592,7 @@ mod tests {
             flags in (any::<u32>(), any::<u32>(), any::<u32>()),
             rets in (any_f32(), any_f32()),
             points in proptest::collection::vec(proptest::array::uniform4(any_f32()), 0..40),
+            low_water in any::<u64>(),
         ) {
             let (actor, env, incarnation, seq, task_id, category) = ints;
             let h = EpisodeHeader {
@@ -531,7 +602,12 @@ mod tests {
             };
             let pts: Vec<EpisodePoint> =
                 points.iter().map(|&[x, y, yaw, reward]| EpisodePoint { x, y, yaw, reward }).collect();
-            let (back, back_pts) = decode_episode(&encode_episode(&h, &pts)).unwrap();
+            let mut bytes = encode_episode(&h, low_water, &pts);
+            let (back, back_low, back_pts) = decode_episode(&bytes).unwrap();
+            prop_assert_eq!(back_low, low_water);
+            restamp_low_water(&mut bytes, low_water ^ 0x5a5a);
+            let (again, again_low, _) = decode_episode(&bytes).unwrap();
+            prop_assert_eq!((again_low, again.seq), (low_water ^ 0x5a5a, seq), "restamping changes the mark alone");
             prop_assert_eq!(
                 (back.actor, back.env, back.incarnation, back.seq, back.task_id, back.category),
                 (actor, env, incarnation, seq, task_id, category)
@@ -556,6 +632,15 @@ mod tests {
             let bytes = encode_acks(&table);
             prop_assert_eq!(bytes.len(), 2 + 8 + 24 * entries.len(), "only the entries of actors seen travel");
             prop_assert_eq!(decode_acks(&bytes).unwrap(), table);
+        }
+
+        #[test]
+        fn report_acks_round_trip(entries in proptest::collection::vec((0..MAX_ACTORS as u32, any::<u32>(), any::<u64>()), 0..40)) {
+            let acks: Vec<ReportAck> =
+                entries.iter().map(|&(actor, incarnation, next)| ReportAck { actor, incarnation, next }).collect();
+            let bytes = encode_report_acks(&acks);
+            prop_assert_eq!(bytes.len(), 2 + 8 + 16 * acks.len());
+            prop_assert_eq!(decode_report_acks(&bytes).unwrap(), acks);
         }
 
         #[test]
@@ -616,9 +701,10 @@ mod tests {
                     let _ = decode_task_request(b);
                     let _ = decode_task_response(b);
                     let _ = decode_heartbeat(b);
+                    let _ = decode_report_acks(b);
                 }
             }
-            let good = encode_episode(&EpisodeHeader::default(), &[EpisodePoint::default(); 3]);
+            let good = encode_episode(&EpisodeHeader::default(), 0, &[EpisodePoint::default(); 3]);
             let short = &good[..good.len().saturating_sub(cut + 1)];
             prop_assert!(decode_episode(short).is_err());
             let mut long = good.clone();
@@ -663,6 +749,16 @@ mod tests {
         e.u64(0);
         let err = decode_acks(&e.0).unwrap_err().to_string();
         assert!(err.contains(&format!("actor {MAX_ACTORS}")), "{err}");
+    }
+
+    #[test]
+    fn a_report_ack_for_an_actor_beyond_this_build_is_refused() {
+        let bytes = encode_report_acks(&[ReportAck { actor: MAX_ACTORS as u32, incarnation: 1, next: 3 }]);
+        let err = decode_report_acks(&bytes).unwrap_err().to_string();
+        assert!(
+            err.contains("episode report acknowledgement") && err.contains(&format!("actor {MAX_ACTORS}")),
+            "{err}"
+        );
     }
 
     #[test]
