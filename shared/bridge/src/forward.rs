@@ -93,9 +93,11 @@ pub struct Tally {
     /// Messages refused (malformed, another version, an actor id that is not the
     /// sender's, an observation of another size).
     pub refused: AtomicU64,
-    /// Records or reports the local services did not take (a learner or curriculum
-    /// service that was gone or stalled past `runtime.give_up_secs`): the actor still
-    /// holds each step record and sends it again when asked.
+    /// Records or reports not delivered to the local services: ones a learner or
+    /// curriculum service did not take (gone or stalled past `runtime.give_up_secs`),
+    /// and ones a learner-host worker dropped beyond its backlog. The actor still holds
+    /// each step record and sends it again when asked; the actor host holds each
+    /// episode report until it is acknowledged and sends it again.
     pub not_delivered: AtomicU64,
     /// Times a host's liveliness token was withdrawn.
     pub hosts_gone: AtomicU64,
