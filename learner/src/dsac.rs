@@ -221,8 +221,19 @@ impl Dsac {
         Ok((s.action.detach(), s.log_prob.detach()))
     }
 
-    /// One DSAC update on `batch`.
+    /// One DSAC update on `batch`. On the CPU it runs on a worker of rayon's pool
+    /// ([`pednav_nets::cpu::on_pool_worker`]): the update's parallel kernels then
+    /// share their work inside the pool instead of each being handed over from the
+    /// caller's thread.
     pub fn update(&mut self, batch: &Batch) -> Result<UpdateStats> {
+        if batch.action.device().is_cpu() {
+            pednav_nets::cpu::on_pool_worker(|| self.update_here(batch))
+        } else {
+            self.update_here(batch)
+        }
+    }
+
+    fn update_here(&mut self, batch: &Batch) -> Result<UpdateStats> {
         let c = self.cfg.clone();
         let alpha = self.alpha()?;
         let nets = &self.nets;

@@ -58,10 +58,31 @@ pub fn init_cpu_runtime(threads: Option<usize>) -> usize {
         }
         let isa = crate::ops::Isa::active();
         tracing::info!(isa = isa.name(), threads = n, "CPU kernels");
-        // If something already built the global pool, keep it.
-        let _ = rayon::ThreadPoolBuilder::new().num_threads(n).build_global();
+        // If something already built the global pool, keep it. Its workers get the
+        // main thread's stack size: [`on_pool_worker`] runs whole updates there
+        // (candle's backward pass walks the graph recursively).
+        let _ = rayon::ThreadPoolBuilder::new().num_threads(n).stack_size(WORKER_STACK).build_global();
         rayon::current_num_threads()
     })
+}
+
+/// Stack of each worker of the global pool (a Linux main thread's default).
+const WORKER_STACK: usize = 8 << 20;
+
+/// Run `f` on a worker of rayon's global pool and wait for it (directly, when the
+/// caller is a worker already).
+///
+/// Why: every parallel kernel called from outside the pool (the convolutions, gemm)
+/// is injected into it while the caller sleeps until the job is done — two context
+/// switches per call, dozens of calls per update; from a worker, the same kernels
+/// split their work with `join` inside the pool and the caller works on its half.
+/// Use it around work that calls many parallel kernels in a row (a learner update),
+/// on the CPU only (a CUDA context is bound per thread). While `f` waits for its
+/// kernels, its worker may run other jobs of the pool, so `f` must not hold a lock
+/// that such jobs take (the learner's update holds none; its in-place optimiser ops
+/// lock only the parameters no other thread uses).
+pub fn on_pool_worker<R: Send>(f: impl FnOnce() -> R + Send) -> R {
+    rayon::scope(|_| f())
 }
 
 #[cfg(target_env = "gnu")]

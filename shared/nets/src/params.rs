@@ -101,7 +101,8 @@ impl ParamStore {
         self.load(&source.tensors())
     }
 
-    /// Polyak averaging towards `source`: θ ← (1 − τ)·θ + τ·θ_source.
+    /// Polyak averaging towards `source`: θ ← (1 − τ)·θ + τ·θ_source (on the CPU in
+    /// place, one pass per parameter; elsewhere with candle's ops).
     pub fn soft_update(&self, source: &ParamStore, tau: f64) -> Result<()> {
         if self.vars.len() != source.vars.len() {
             return Err(NetError::Incompatible {
@@ -109,9 +110,24 @@ impl ParamStore {
                 message: format!("soft update from `{}` with a different parameter count", source.name),
             });
         }
+        for ((name, t), (_, s)) in self.vars.iter().zip(&source.vars) {
+            if t.dims() != s.dims() {
+                return Err(NetError::Incompatible {
+                    network: self.name.clone(),
+                    message: format!("soft update of `{name}` {:?} from a {:?} tensor", t.dims(), s.dims()),
+                });
+            }
+        }
         for ((_, t), (_, s)) in self.vars.iter().zip(&source.vars) {
-            let new = ((t.as_tensor() * (1.0 - tau))? + (s.as_tensor() * tau)?)?;
-            t.set(&new)?;
+            if t.id() == s.id() {
+                continue; // a clone of this store shares its parameters: nothing moves
+            }
+            if t.device().is_cpu() && s.device().is_cpu() {
+                crate::ops::fused::polyak_in_place(t.as_tensor(), s.as_tensor(), tau)?;
+            } else {
+                let new = ((t.as_tensor() * (1.0 - tau))? + (s.as_tensor() * tau)?)?;
+                t.set(&new)?;
+            }
         }
         Ok(())
     }

@@ -1,6 +1,7 @@
 //! Operations candle 0.11 lacks or runs slowly here: the channel-last convolution
-//! kernel, a fully connected layer fast at one row, softplus, a fast
-//! frames-to-channels transpose, and a few numerically careful helpers.
+//! kernel, a fully connected layer fast at one row, the optimiser's in-place
+//! element-wise steps ([`fused`]), softplus, a fast frames-to-channels transpose,
+//! and a few numerically careful helpers.
 
 /// Define `fn $name<const …>(isa: Isa, args)` that runs `$imp::<…, FMA>` compiled
 /// for AVX-512F with FMA, AVX2 with FMA (`FMA = true`) or the baseline (`FMA =
@@ -41,6 +42,7 @@ macro_rules! multiversioned {
 }
 
 pub mod conv;
+pub mod fused;
 pub mod isa;
 pub mod linear;
 mod simd;

@@ -66,3 +66,26 @@ fn adamw_moments_hold_values_not_the_update_graph() {
         }
     }
 }
+
+#[test]
+fn soft_update_is_the_polyak_average_and_refuses_other_shapes() {
+    let dev = Device::Cpu;
+    let mut target = ParamStore::new("target", &dev);
+    let mut online = ParamStore::new("online", &dev);
+    // Above the fused kernel's parallel threshold, so both of its paths run.
+    let n = pednav_nets::ops::fused::PARALLEL_MIN + 5;
+    let t: Var = target.insert("w", Tensor::new(&[1f32, -2.0], &dev).unwrap()).unwrap();
+    online.insert("w", Tensor::new(&[3f32, 4.0], &dev).unwrap()).unwrap();
+    let big: Var = target.insert("big", Tensor::ones(n, candle_core::DType::F32, &dev).unwrap()).unwrap();
+    online.insert("big", Tensor::zeros(n, candle_core::DType::F32, &dev).unwrap()).unwrap();
+    target.soft_update(&online, 0.25).unwrap();
+    // 0.75·(1, −2) + 0.25·(3, 4) = (1.5, −0.5); 0.75·1 + 0.25·0 = 0.75.
+    assert_eq!(t.to_vec1::<f32>().unwrap(), vec![1.5, -0.5]);
+    assert!(big.to_vec1::<f32>().unwrap().iter().all(|&x| x == 0.75));
+    let mut other = ParamStore::new("other", &dev);
+    other.insert("w", Tensor::new(&[3f32, 4.0, 5.0], &dev).unwrap()).unwrap();
+    other.insert("big", Tensor::zeros(n, candle_core::DType::F32, &dev).unwrap()).unwrap();
+    let err = target.soft_update(&other, 0.25).unwrap_err().to_string();
+    assert!(err.contains("`w`"), "{err}");
+    assert_eq!(t.to_vec1::<f32>().unwrap(), vec![1.5, -0.5], "a refused update changes nothing");
+}
