@@ -18,6 +18,7 @@ ARMS = {
     "3-step returns (recipe otherwise)": [HERE / "nstep3-s1", HERE / "nstep3-s2"],
     "random shift ±2 px (recipe otherwise)": [HERE / "shift2-s1", HERE / "shift2-s2"],
     "update-to-data 1/4, stopped at 2,000 s (recipe otherwise)": [HERE / "utd4-s1", HERE / "utd4-s2"],
+    "84² frames, stopped at 2,000 s (recipe otherwise)": [HERE / "img84-s1", HERE / "img84-s2"],
 }
 
 print("| arm | run | wall time | env steps received | updates | median update | gate opened after (env steps) |")
