@@ -19,6 +19,14 @@
 //!   run). `CANDLE_BARRIER_POOL_SPIN_LIMIT` is set to [`BARRIER_SPIN_LIMIT`] unless
 //!   the user set it; the spinning's share of the profile is gone with it, the update
 //!   time of that run did not change measurably (80 ms either way).
+//! - candle's barrier pool, its size: by default it has a worker per core beside
+//!   rayon's, so on two cores each element-wise op of candle woke a second set of
+//!   threads that competed with rayon's for the same cores (≈ 4 % futex wake-ups and
+//!   ≈ 3 % barrier waits in the learner's profile). `CANDLE_NUM_THREADS` is set to
+//!   [`CANDLE_THREADS`] unless the user set it: candle's element-wise ops then run on
+//!   the calling thread (a rayon worker during an update) and the cores stay with the
+//!   kernels. Measured in real runs of the default preset, alternating:
+//!   docs/results/learner-real-run/README.md.
 //! - subnormal floats are *not* flushed to zero: a pixel run's AdamW state holds many
 //!   (16 % of its first moments after 120 k env steps), but setting MXCSR's FTZ and
 //!   DAZ made no measurable difference to the update time, and changing the
@@ -36,6 +44,9 @@ static INIT: OnceLock<usize> = OnceLock::new();
 /// Spins of a candle barrier-pool worker before it sleeps (candle's default: 25,000).
 pub const BARRIER_SPIN_LIMIT: u32 = 256;
 
+/// Threads of candle's own element-wise pool (see the module docs).
+pub const CANDLE_THREADS: usize = 1;
+
 /// Apply the allocator and thread settings; returns the number of worker threads.
 /// `threads = None` uses every available core. Later calls return the first result.
 /// Call it at the start of `main`, before anything spawns a thread (see the module
@@ -51,6 +62,9 @@ pub fn init_cpu_runtime(threads: Option<usize>) -> usize {
                 std::env::set_var("RAYON_NUM_THREADS", n.to_string());
                 if std::env::var_os("CANDLE_BARRIER_POOL_SPIN_LIMIT").is_none() {
                     std::env::set_var("CANDLE_BARRIER_POOL_SPIN_LIMIT", BARRIER_SPIN_LIMIT.to_string());
+                }
+                if std::env::var_os("CANDLE_NUM_THREADS").is_none() {
+                    std::env::set_var("CANDLE_NUM_THREADS", CANDLE_THREADS.to_string());
                 }
             }
         } else {

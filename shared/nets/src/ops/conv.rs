@@ -51,7 +51,7 @@ use super::Isa;
 use geometry::{Geometry, col2im_add, im2col};
 use pool::Pooled;
 
-pub(super) use gemm_call::matmul;
+pub(super) use gemm_call::{matmul, matmul_new};
 
 /// Geometry of one convolution layer (everything except the channel counts and the
 /// input size, which come from the tensors).

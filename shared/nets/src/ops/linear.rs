@@ -16,7 +16,7 @@
 use candle_core::{CpuStorage, CustomOp3, Layout, Shape, Tensor};
 use gemm::Parallelism;
 
-use super::conv::{cpu_f32, matmul, with_cpu_f32};
+use super::conv::{cpu_f32, matmul_new, with_cpu_f32};
 
 /// Largest batch that takes the row-streaming kernel rather than gemm.
 pub const GEMV_ROWS: usize = 8;
@@ -76,19 +76,21 @@ impl CustomOp3 for LinearOp {
             candle_core::bail!("linear: x is (M, {k}), W is ({k2}, {n}), b is ({n2}): sizes do not match");
         }
         let (x, w, b) = (cpu_f32(s1, l1, "input")?, cpu_f32(s2, l2, "weight")?, cpu_f32(s3, l3, "bias")?);
-        let mut y = vec![0f32; m * n];
-        if m <= GEMV_ROWS {
+        let y = if m <= GEMV_ROWS {
+            let mut y = vec![0f32; m * n];
             small_batch(super::Isa::active(), m, k, n, x, w, b, &mut y);
+            y
         } else {
             let threads = rayon::current_num_threads();
             let par = if threads > 1 { Parallelism::Rayon(threads) } else { Parallelism::None };
-            matmul(m, n, k, &mut y, false, x, (k, 1), w, (n, 1), par);
+            let mut y = matmul_new(m, n, k, x, (k, 1), w, (n, 1), par);
             for row in y.chunks_exact_mut(n.max(1)) {
                 for (v, bv) in row.iter_mut().zip(b) {
                     *v += bv;
                 }
             }
-        }
+            y
+        };
         Ok((CpuStorage::F32(y), Shape::from_dims(&[m, n])))
     }
 
@@ -112,14 +114,9 @@ impl CustomOp3 for LinearOp {
             with_cpu_f32(w, "weight", |ws| {
                 with_cpu_f32(&dy, "output gradient", |g| {
                     // dx (m×k) = dy (m×n) · Wᵀ (n×k)
-                    let dx = need_dx.then(|| {
-                        let mut dx = vec![0f32; m * k];
-                        matmul(m, k, n, &mut dx, false, g, (n, 1), ws, (1, n), par);
-                        dx
-                    });
+                    let dx = need_dx.then(|| matmul_new(m, k, n, g, (n, 1), ws, (1, n), par));
                     // dW (k×n) = xᵀ (k×m) · dy (m×n)
-                    let mut dw = vec![0f32; k * n];
-                    matmul(k, n, m, &mut dw, false, xs, (1, k), g, (n, 1), par);
+                    let dw = matmul_new(k, n, m, xs, (1, k), g, (n, 1), par);
                     let mut db = vec![0f32; n];
                     for row in g.chunks_exact(n.max(1)) {
                         for (d, v) in db.iter_mut().zip(row) {

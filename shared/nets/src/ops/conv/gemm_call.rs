@@ -36,8 +36,7 @@ pub(in crate::ops) fn matmul(
         }
         return;
     }
-    assert!(lhs.len() > (m - 1) * lhs_strides.0 + (k - 1) * lhs_strides.1);
-    assert!(rhs.len() > (k - 1) * rhs_strides.0 + (n - 1) * rhs_strides.1);
+    check_operands(m, n, k, lhs, lhs_strides, rhs, rhs_strides);
     let op = GemmOp {
         m,
         n,
@@ -51,9 +50,70 @@ pub(in crate::ops) fn matmul(
         rhs_strides,
         par,
     };
-    // SAFETY: the slices cover every element addressed by the strides (asserted
+    // SAFETY: the slices cover every element addressed by the strides (checked
     // above), and `dst` does not alias the inputs (distinct borrows).
     unsafe { op.run(Isa::active()) }
+}
+
+/// `lhs (m×k) · rhs (k×n)` as a new row-major vector that is never zero-filled: gemm
+/// called without `accumulate` does not read its destination and writes each of its
+/// m·n elements (a test holds a NaN-filled destination to that on every path), so
+/// the fresh allocation gets its only values from the product. Used where a layer's
+/// output or gradient is the product itself (zero-filling those took ≈ 1 % of a
+/// pixel update in the profile).
+#[allow(clippy::too_many_arguments)]
+pub(in crate::ops) fn matmul_new(
+    m: usize,
+    n: usize,
+    k: usize,
+    lhs: &[f32],
+    lhs_strides: (usize, usize),
+    rhs: &[f32],
+    rhs_strides: (usize, usize),
+    par: Parallelism,
+) -> Vec<f32> {
+    if m == 0 || n == 0 || k == 0 {
+        return vec![0f32; m * n];
+    }
+    check_operands(m, n, k, lhs, lhs_strides, rhs, rhs_strides);
+    let mut dst = Vec::with_capacity(m * n);
+    let op = GemmOp {
+        m,
+        n,
+        k,
+        dst: dst.as_mut_ptr(),
+        dst_strides: (n, 1),
+        accumulate: false,
+        lhs: lhs.as_ptr(),
+        lhs_strides,
+        rhs: rhs.as_ptr(),
+        rhs_strides,
+        par,
+    };
+    // SAFETY: the operands cover their strides (checked above); `dst` is a fresh
+    // allocation of m·n floats that aliases nothing, written through its raw pointer
+    // only; gemm without `accumulate` writes every one of its m·n elements before
+    // `set_len` exposes them.
+    unsafe {
+        op.run(Isa::active());
+        dst.set_len(m * n);
+    }
+    dst
+}
+
+/// Every element the strides address lies inside its slice (checked before any raw
+/// pointer reaches gemm).
+fn check_operands(
+    m: usize,
+    n: usize,
+    k: usize,
+    lhs: &[f32],
+    lhs_strides: (usize, usize),
+    rhs: &[f32],
+    rhs_strides: (usize, usize),
+) {
+    assert!(lhs.len() > (m - 1) * lhs_strides.0 + (k - 1) * lhs_strides.1, "lhs too short for its strides");
+    assert!(rhs.len() > (k - 1) * rhs_strides.0 + (n - 1) * rhs_strides.1, "rhs too short for its strides");
 }
 
 /// One gemm call with its operands (raw, checked by [`matmul`]).
@@ -156,6 +216,76 @@ impl GemmOp {
                 #[cfg(target_arch = "x86_64")]
                 Isa::Avx2 => gemm_with!(op, gemm_common::simd::V3, gemm_f32::microkernel::fma::f32, 8),
                 _ => gemm_with!(op, gemm_common::simd::Scalar, gemm_f32::microkernel::scalar::f32, 1),
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn values(len: usize, seed: u32) -> Vec<f32> {
+        (0..len).map(|i| (((i as u32).wrapping_mul(2_654_435_761) ^ seed) % 1000) as f32 / 500.0 - 1.0).collect()
+    }
+
+    /// The invariant `matmul_new` rests on: without `accumulate`, gemm neither reads
+    /// its destination (a NaN there would reach the result) nor leaves an element
+    /// unwritten, on every path this CPU has, for edge tiles, several k blocks,
+    /// transposed operands and both orientations of the destination.
+    #[test]
+    fn a_product_without_accumulate_ignores_and_overwrites_the_destination() {
+        let shapes = [(1, 1, 1), (9, 1, 40), (3, 5, 7), (17, 9, 33), (70, 33, 600), (8, 300, 40), (129, 7, 5)];
+        for isa in Isa::supported() {
+            for &(m, n, k) in &shapes {
+                for transposed in [false, true] {
+                    let lhs = values(m * k, 1);
+                    let rhs = values(k * n, 2);
+                    let (ls, rs) = if transposed { ((1, m), (1, k)) } else { ((k, 1), (n, 1)) };
+                    let mut want = vec![0f64; m * n];
+                    for i in 0..m {
+                        for j in 0..n {
+                            want[i * n + j] =
+                                (0..k).map(|p| lhs[i * ls.0 + p * ls.1] as f64 * rhs[p * rs.0 + j * rs.1] as f64).sum();
+                        }
+                    }
+                    let mut dst = vec![f32::NAN; m * n];
+                    let op = GemmOp {
+                        m,
+                        n,
+                        k,
+                        dst: dst.as_mut_ptr(),
+                        dst_strides: (n, 1),
+                        accumulate: false,
+                        lhs: lhs.as_ptr(),
+                        lhs_strides: ls,
+                        rhs: rhs.as_ptr(),
+                        rhs_strides: rs,
+                        par: Parallelism::None,
+                    };
+                    // SAFETY: the slices hold exactly what the strides address; dst is distinct.
+                    unsafe { op.run(isa) };
+                    for (i, (&got, &w)) in dst.iter().zip(&want).enumerate() {
+                        assert!(
+                            (got as f64 - w).abs() <= 1e-4 * (1.0 + w.abs()),
+                            "{isa} {m}x{n}x{k} transposed {transposed}: element {i} is {got}, expected {w}"
+                        );
+                    }
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn matmul_new_equals_matmul_into_zeros() {
+        for &(m, n, k) in &[(0, 4, 3), (4, 0, 3), (4, 3, 0), (17, 9, 33), (70, 33, 600)] {
+            let (lhs, rhs) = (values(m * k, 3), values(k * n, 4));
+            let mut into = vec![0f32; m * n];
+            matmul(m, n, k, &mut into, false, &lhs, (k, 1), &rhs, (n, 1), Parallelism::None);
+            let new = matmul_new(m, n, k, &lhs, (k, 1), &rhs, (n, 1), Parallelism::Rayon(2));
+            assert_eq!(new.len(), m * n);
+            for (a, b) in new.iter().zip(&into) {
+                assert!((a - b).abs() <= 1e-5 * (1.0 + b.abs()), "{m}x{n}x{k}: {a} against {b}");
             }
         }
     }
