@@ -72,8 +72,12 @@ pub(in crate::ops) fn matmul_new(
     rhs_strides: (usize, usize),
     par: Parallelism,
 ) -> Vec<f32> {
-    if m == 0 || n == 0 || k == 0 {
-        return vec![0f32; m * n];
+    if m <= 1 || n <= 1 || k == 0 {
+        // gemm's matrix-vector paths view the destination as a slice, which must not
+        // hold uninitialised floats; these products are vectors, their fill is cheap.
+        let mut dst = vec![0f32; m * n];
+        matmul(m, n, k, &mut dst, false, lhs, lhs_strides, rhs, rhs_strides, par);
+        return dst;
     }
     check_operands(m, n, k, lhs, lhs_strides, rhs, rhs_strides);
     let mut dst = Vec::with_capacity(m * n);
@@ -231,17 +235,24 @@ mod tests {
 
     /// The invariant `matmul_new` rests on: without `accumulate`, gemm neither reads
     /// its destination (a NaN there would reach the result) nor leaves an element
-    /// unwritten, on every path this CPU has, for edge tiles, several k blocks,
-    /// transposed operands and both orientations of the destination.
+    /// unwritten — on every path this CPU has, on one thread and on the pool, for edge
+    /// tiles, k beyond gemm's cache blocks (2,100), small products (its horizontal
+    /// kernel) and every combination of row- and column-major operands (the linear
+    /// layer's gradients read transposed operands in place).
     #[test]
     fn a_product_without_accumulate_ignores_and_overwrites_the_destination() {
-        let shapes = [(1, 1, 1), (9, 1, 40), (3, 5, 7), (17, 9, 33), (70, 33, 600), (8, 300, 40), (129, 7, 5)];
+        let shapes =
+            [(2, 2, 1), (3, 5, 7), (17, 9, 33), (6, 5, 1100), (70, 33, 600), (40, 24, 2100), (8, 300, 40), (129, 7, 5)];
         for isa in Isa::supported() {
             for &(m, n, k) in &shapes {
-                for transposed in [false, true] {
+                for (lhs_cols, rhs_cols, par) in (0..8).map(|i| {
+                    (i & 1 == 1, i & 2 == 2, if i & 4 == 4 { Parallelism::Rayon(2) } else { Parallelism::None })
+                }) {
                     let lhs = values(m * k, 1);
                     let rhs = values(k * n, 2);
-                    let (ls, rs) = if transposed { ((1, m), (1, k)) } else { ((k, 1), (n, 1)) };
+                    // Column-major operands are read through swapped strides.
+                    let ls = if lhs_cols { (1, m) } else { (k, 1) };
+                    let rs = if rhs_cols { (1, k) } else { (n, 1) };
                     let mut want = vec![0f64; m * n];
                     for i in 0..m {
                         for j in 0..n {
@@ -261,14 +272,14 @@ mod tests {
                         lhs_strides: ls,
                         rhs: rhs.as_ptr(),
                         rhs_strides: rs,
-                        par: Parallelism::None,
+                        par,
                     };
                     // SAFETY: the slices hold exactly what the strides address; dst is distinct.
                     unsafe { op.run(isa) };
                     for (i, (&got, &w)) in dst.iter().zip(&want).enumerate() {
                         assert!(
                             (got as f64 - w).abs() <= 1e-4 * (1.0 + w.abs()),
-                            "{isa} {m}x{n}x{k} transposed {transposed}: element {i} is {got}, expected {w}"
+                            "{isa} {m}x{n}x{k} lhs column-major {lhs_cols} rhs column-major {rhs_cols} {par:?}: element {i} is {got}, expected {w}"
                         );
                     }
                 }
@@ -278,7 +289,7 @@ mod tests {
 
     #[test]
     fn matmul_new_equals_matmul_into_zeros() {
-        for &(m, n, k) in &[(0, 4, 3), (4, 0, 3), (4, 3, 0), (17, 9, 33), (70, 33, 600)] {
+        for &(m, n, k) in &[(0, 4, 3), (4, 0, 3), (4, 3, 0), (1, 9, 33), (9, 1, 33), (17, 9, 33), (70, 33, 600)] {
             let (lhs, rhs) = (values(m * k, 3), values(k * n, 4));
             let mut into = vec![0f32; m * n];
             matmul(m, n, k, &mut into, false, &lhs, (k, 1), &rhs, (n, 1), Parallelism::None);
