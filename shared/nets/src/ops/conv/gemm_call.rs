@@ -1,11 +1,12 @@
-//! One matrix product on explicit strides ([`matmul`]) through gemm's generic driver
-//! with the microkernels of [`Isa::active`] ([`GemmOp`]), shared by the convolution
-//! and the fully connected op.
+//! One matrix product on explicit strides ([`matmul`] into a slice, [`matmul_new`]
+//! into a fresh vector) through gemm's generic driver with the microkernels of
+//! [`Isa::active`] ([`GemmOp`]), shared by the convolution and the fully connected op.
 //!
-//! Invariant: [`matmul`] checks that every slice covers each element its strides
-//! address before any raw pointer reaches gemm, the destination is a distinct borrow
-//! (it aliases neither operand), and the instruction set is asserted supported by the
-//! CPU before its microkernels run.
+//! Invariant: both go through [`product`], which checks that every operand slice
+//! covers each element its strides address before any raw pointer reaches gemm; the
+//! destination is a distinct borrow or a fresh allocation (it aliases neither
+//! operand), and the instruction set is asserted supported by the CPU before its
+//! microkernels run.
 
 use gemm::Parallelism;
 
@@ -36,23 +37,9 @@ pub(in crate::ops) fn matmul(
         }
         return;
     }
-    check_operands(m, n, k, lhs, lhs_strides, rhs, rhs_strides);
-    let op = GemmOp {
-        m,
-        n,
-        k,
-        dst: dst.as_mut_ptr(),
-        dst_strides: (n, 1),
-        accumulate,
-        lhs: lhs.as_ptr(),
-        lhs_strides,
-        rhs: rhs.as_ptr(),
-        rhs_strides,
-        par,
-    };
-    // SAFETY: the slices cover every element addressed by the strides (checked
-    // above), and `dst` does not alias the inputs (distinct borrows).
-    unsafe { op.run(Isa::active()) }
+    // SAFETY: `dst` holds m·n floats (asserted in debug builds, addressed through the
+    // row-major strides below) and, a distinct borrow, aliases neither operand.
+    unsafe { product(Isa::active(), m, n, k, dst.as_mut_ptr(), accumulate, lhs, lhs_strides, rhs, rhs_strides, par) }
 }
 
 /// `lhs (m×k) · rhs (k×n)` as a new row-major vector that is never zero-filled: gemm
@@ -79,48 +66,56 @@ pub(in crate::ops) fn matmul_new(
         matmul(m, n, k, &mut dst, false, lhs, lhs_strides, rhs, rhs_strides, par);
         return dst;
     }
-    check_operands(m, n, k, lhs, lhs_strides, rhs, rhs_strides);
     let mut dst = Vec::with_capacity(m * n);
+    // SAFETY: `dst` is a fresh allocation of m·n floats that aliases nothing, written
+    // through its raw pointer only; gemm without `accumulate` writes every one of its
+    // m·n elements before `set_len` exposes them.
+    unsafe {
+        product(Isa::active(), m, n, k, dst.as_mut_ptr(), false, lhs, lhs_strides, rhs, rhs_strides, par);
+        dst.set_len(m * n);
+    }
+    dst
+}
+
+/// `dst (m×n, row-major) = [dst +] lhs · rhs` on `isa`'s kernels, after checking
+/// that every element the operands' strides address lies inside its slice (m, n, k ≥ 1).
+///
+/// SAFETY: `dst` is valid for writes of m·n floats (and reads, with `accumulate`)
+/// and aliases neither operand.
+#[allow(clippy::too_many_arguments)]
+unsafe fn product(
+    isa: Isa,
+    m: usize,
+    n: usize,
+    k: usize,
+    dst: *mut f32,
+    accumulate: bool,
+    lhs: &[f32],
+    lhs_strides: (usize, usize),
+    rhs: &[f32],
+    rhs_strides: (usize, usize),
+    par: Parallelism,
+) {
+    assert!(lhs.len() > (m - 1) * lhs_strides.0 + (k - 1) * lhs_strides.1, "lhs too short for its strides");
+    assert!(rhs.len() > (k - 1) * rhs_strides.0 + (n - 1) * rhs_strides.1, "rhs too short for its strides");
     let op = GemmOp {
         m,
         n,
         k,
-        dst: dst.as_mut_ptr(),
+        dst,
         dst_strides: (n, 1),
-        accumulate: false,
+        accumulate,
         lhs: lhs.as_ptr(),
         lhs_strides,
         rhs: rhs.as_ptr(),
         rhs_strides,
         par,
     };
-    // SAFETY: the operands cover their strides (checked above); `dst` is a fresh
-    // allocation of m·n floats that aliases nothing, written through its raw pointer
-    // only; gemm without `accumulate` writes every one of its m·n elements before
-    // `set_len` exposes them.
-    unsafe {
-        op.run(Isa::active());
-        dst.set_len(m * n);
-    }
-    dst
+    // SAFETY: the operands cover their strides (asserted above); the caller vouches for `dst`.
+    unsafe { op.run(isa) }
 }
 
-/// Every element the strides address lies inside its slice (checked before any raw
-/// pointer reaches gemm).
-fn check_operands(
-    m: usize,
-    n: usize,
-    k: usize,
-    lhs: &[f32],
-    lhs_strides: (usize, usize),
-    rhs: &[f32],
-    rhs_strides: (usize, usize),
-) {
-    assert!(lhs.len() > (m - 1) * lhs_strides.0 + (k - 1) * lhs_strides.1, "lhs too short for its strides");
-    assert!(rhs.len() > (k - 1) * rhs_strides.0 + (n - 1) * rhs_strides.1, "rhs too short for its strides");
-}
-
-/// One gemm call with its operands (raw, checked by [`matmul`]).
+/// One gemm call with its operands (raw, checked by [`product`]).
 struct GemmOp {
     m: usize,
     n: usize,
@@ -261,21 +256,8 @@ mod tests {
                         }
                     }
                     let mut dst = vec![f32::NAN; m * n];
-                    let op = GemmOp {
-                        m,
-                        n,
-                        k,
-                        dst: dst.as_mut_ptr(),
-                        dst_strides: (n, 1),
-                        accumulate: false,
-                        lhs: lhs.as_ptr(),
-                        lhs_strides: ls,
-                        rhs: rhs.as_ptr(),
-                        rhs_strides: rs,
-                        par,
-                    };
-                    // SAFETY: the slices hold exactly what the strides address; dst is distinct.
-                    unsafe { op.run(isa) };
+                    // SAFETY: dst holds m·n floats and is distinct from the operands.
+                    unsafe { product(isa, m, n, k, dst.as_mut_ptr(), false, &lhs, ls, &rhs, rs, par) };
                     for (i, (&got, &w)) in dst.iter().zip(&want).enumerate() {
                         assert!(
                             (got as f64 - w).abs() <= 1e-4 * (1.0 + w.abs()),
