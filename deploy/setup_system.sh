@@ -3,9 +3,10 @@
 #   - Mesa's OpenGL through EGL (llvmpipe) and Vulkan (lavapipe): the renderer runs
 #     on them when there is no GPU; with a GPU its driver is used instead.
 #   - DejaVu Sans, the font the plots (pednav-plot, pednav-eval) write text with.
+#   - iproute2 (`ip`): the multi-host test across network namespaces makes its own.
 # Idempotent and quiet when everything is present; needs root (or sudo) otherwise.
 set -euo pipefail
-packages=(libegl1 libegl-mesa0 libgl1-mesa-dri mesa-vulkan-drivers libvulkan1 fonts-dejavu-core)
+packages=(libegl1 libegl-mesa0 libgl1-mesa-dri mesa-vulkan-drivers libvulkan1 fonts-dejavu-core iproute2)
 missing=()
 for p in "${packages[@]}"; do
     dpkg -s "$p" >/dev/null 2>&1 || missing+=("$p")

@@ -12,8 +12,9 @@
 //! - `bridge`: the two bridges of a run across hosts over loopback
 //!   (`bench_bridge.rs`).
 //! - `soak`: a long smoke-config run whose learner, curriculum service and actors
-//!   are SIGKILLed at seeded random times; restarts, steps lost, whether training
-//!   continued (`soak/`; not in CI).
+//!   are SIGKILLed at seeded random times (with `--across-hosts`, over two hosts on
+//!   this machine, their bridges too and the link cut); restarts, steps lost, whether
+//!   training continued (`soak/`; not in CI).
 
 use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
@@ -64,9 +65,11 @@ pub enum Bench {
         inference: bool,
     },
     /// Soak: a smoke-config run (30 min by default; not in CI) whose learner, curriculum
-    /// service and actors are SIGKILLed at seeded random times; reports the launcher's
-    /// restarts, whether training continued after each kill, and steps lost between
-    /// the actors and the learner (Markdown on stdout, soak.json in the run directory).
+    /// service and actors are SIGKILLed at seeded random times (--across-hosts: a
+    /// learner host and an actor host on this machine, whose bridges are killed and
+    /// whose link is cut too); reports the launchers' restarts, whether training
+    /// continued after each kill, and steps lost between the actors and the learner
+    /// (Markdown on stdout, soak.json in the run directory).
     Soak(crate::soak::Soak),
     /// The bridges of a run across hosts, on loopback: step records/s, weights and
     /// task latency, and records lost or duplicated across a cut link and a stalled

@@ -9,12 +9,11 @@
 //! `--drop-secs` (a TCP relay between the hosts closes every connection and refuses new
 //! ones), then the learner stalls for `--stall-secs`; afterwards every record must be in
 //! once. For orientation the same run measures plain zenoh pub/sub of records of the
-//! same size between two sessions on loopback (congestion control *Block*).
+//! same size between two sessions on loopback (congestion control *Block*), over the
+//! same transport as the bridges: plain TCP, or mutual TLS with `--tls-dir`.
 //!
 //! Invariant: every figure is measured in this run; nothing is assumed.
 
-use std::io::{Read, Write};
-use std::net::{Shutdown, TcpListener, TcpStream};
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
@@ -22,13 +21,15 @@ use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result, bail};
 use clap::Args;
-use pednav_bridge::{ActorHostOptions, LearnerHostOptions, LinkConfig};
+use pednav_bridge::{ActorHostOptions, LearnerHostOptions, LinkConfig, TlsFiles};
 use pednav_runtime::channels::{StepPayload, StepWriter, StreamId, TaskRequester};
 use pednav_runtime::ipc::receive_step_round;
 use pednav_runtime::messages::{AckTable, Heartbeat, ProcessKind, StepHeader, StreamAck, TaskResponse, WeightsHeader};
 use pednav_runtime::reliable::{ReceiveCursor, Verdict};
 use pednav_runtime::{Ipc, RunConfig, RunDir, StopFlag, now_ns, run_prefix};
 use serde::Serialize;
+
+use crate::relay::{Relay, free_port};
 
 /// Arguments of `bench bridge`.
 #[derive(Args)]
@@ -48,11 +49,19 @@ pub struct BenchBridge {
     /// Also write the figures as JSON to this file.
     #[arg(long)]
     json: Option<PathBuf>,
+    /// Run the link (and the plain zenoh reference) over mutual TLS with the
+    /// certificates in this folder: `ca.pem`, `learner-host.pem` / `learner-host.key`
+    /// and `actor-host.pem` / `actor-host.key`, the learner host's naming 127.0.0.1 —
+    /// the layout `shared/bridge/testdata/tls/make.sh` writes. Without it: plain TCP.
+    #[arg(long, value_name = "DIR")]
+    tls_dir: Option<PathBuf>,
 }
 
 /// The figures (`--json`).
 #[derive(Debug, Serialize)]
 struct Figures {
+    /// `tcp` or `tls` (mutual), for the bridges' link and the plain zenoh reference alike.
+    transport: &'static str,
     record_bytes: usize,
     records_per_s: f64,
     megabytes_per_s: f64,
@@ -82,6 +91,8 @@ struct Taken {
 
 pub fn run(args: BenchBridge) -> Result<()> {
     let stop = StopFlag::install();
+    // The TLS files are checked before anything is made.
+    let tls = args.tls_dir.as_deref().map(BenchTls::from_dir).transpose()?;
     let root = std::env::temp_dir().join(format!("pednav-bench-bridge-{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&root);
     let (learner_dir, actor_dir) = (root.join("learner-host"), root.join("actor-host"));
@@ -90,15 +101,17 @@ pub fn run(args: BenchBridge) -> Result<()> {
         RunDir::new(d).prepare(&cfg)?;
     }
     let record_bytes = cfg.observation_bytes();
-    let plain = plain_zenoh_rate(record_bytes, 50_000)?;
-    eprintln!("plain zenoh pub/sub, {record_bytes}-byte records over loopback: {plain:.0} records/s");
+    let transport = if tls.is_some() { "tls" } else { "tcp" };
+    let plain = plain_zenoh_rate(record_bytes, 50_000, tls.as_ref())?;
+    eprintln!("plain zenoh pub/sub, {record_bytes}-byte records over loopback ({transport}): {plain:.0} records/s");
 
     let (learner_port, relay_port) = (free_port()?, free_port()?);
     let relay = Relay::start(relay_port, learner_port)?;
     let learner_bridge = {
         let opts = LearnerHostOptions {
             run_dir: learner_dir.clone(),
-            link: LinkConfig::listening(&[format!("tcp/127.0.0.1:{learner_port}")]),
+            link: LinkConfig::listening(&[format!("{transport}/127.0.0.1:{learner_port}")])
+                .with_tls(tls.as_ref().map(|t| t.learner_host.clone())),
             local_actors: 0,
         };
         let stop = stop.clone();
@@ -116,7 +129,9 @@ pub fn run(args: BenchBridge) -> Result<()> {
     let actor_bridge = {
         let opts = ActorHostOptions {
             run_dir: actor_dir.clone(),
-            link: LinkConfig::connecting(&[format!("tcp/127.0.0.1:{relay_port}")]).keep_trying(),
+            link: LinkConfig::connecting(&[format!("{transport}/127.0.0.1:{relay_port}")])
+                .keep_trying()
+                .with_tls(tls.as_ref().map(|t| t.actor_host.clone())),
             run: pednav_bridge::run_name(&learner_dir),
             host: "bench-actors".into(),
         };
@@ -165,6 +180,7 @@ pub fn run(args: BenchBridge) -> Result<()> {
         eprintln!("warning: {e}");
     }
     let figures = Figures {
+        transport,
         record_bytes,
         records_per_s,
         megabytes_per_s: records_per_s * record_bytes as f64 / 1e6,
@@ -197,8 +213,11 @@ fn print_table(f: &Figures) {
     println!("| measure | value | goal |");
     println!("|---|---|---|");
     println!(
-        "| step records/s ({} B, through both bridges) | {:.0} ({:.0} MB/s) | ≥ 50,000 |",
-        f.record_bytes, f.records_per_s, f.megabytes_per_s
+        "| step records/s ({} B, through both bridges, {}) | {:.0} ({:.0} MB/s) | ≥ 50,000 |",
+        f.record_bytes,
+        if f.transport == "tls" { "mutual TLS" } else { "TCP" },
+        f.records_per_s,
+        f.megabytes_per_s
     );
     println!(
         "| plain zenoh pub/sub, same records | {:.0} (bridge: {:.2} of it) | |",
@@ -222,10 +241,6 @@ fn percentile(values: &[f64], q: f64) -> f64 {
     let mut v = values.to_vec();
     v.sort_by(f64::total_cmp);
     v[((v.len() - 1) as f64 * q).round() as usize]
-}
-
-fn free_port() -> Result<u16> {
-    Ok(TcpListener::bind("127.0.0.1:0")?.local_addr()?.port())
 }
 
 /// Wait until `counter` reaches `target` (or `timeout`, an error naming both).
@@ -451,14 +466,46 @@ impl ActorStandIn {
     }
 }
 
+/// The two hosts' certificates of `--tls-dir`.
+struct BenchTls {
+    learner_host: TlsFiles,
+    actor_host: TlsFiles,
+}
+
+impl BenchTls {
+    /// The files of `dir`, each checked to exist (an error names the missing one).
+    fn from_dir(dir: &Path) -> Result<BenchTls> {
+        let file = |name: &str| -> Result<PathBuf> {
+            let path = std::path::absolute(dir.join(name)).with_context(|| dir.display().to_string())?;
+            if !path.is_file() {
+                bail!(
+                    "--tls-dir {}: no file {name} (the folder needs ca.pem, learner-host.pem/.key and \
+                     actor-host.pem/.key, as shared/bridge/testdata/tls/make.sh writes them)",
+                    dir.display()
+                );
+            }
+            Ok(path)
+        };
+        let host = |name: &str| -> Result<TlsFiles> {
+            Ok(TlsFiles {
+                ca: file("ca.pem")?,
+                certificate: file(&format!("{name}.pem"))?,
+                key: file(&format!("{name}.key"))?,
+            })
+        };
+        Ok(BenchTls { learner_host: host("learner-host")?, actor_host: host("actor-host")? })
+    }
+}
+
 /// Plain zenoh pub/sub of `n` records of `bytes` between two sessions on loopback
-/// (Block), records/s at the subscriber.
-fn plain_zenoh_rate(bytes: usize, n: u64) -> Result<f64> {
+/// (Block), over TCP or, with `tls`, mutual TLS; records/s at the subscriber.
+fn plain_zenoh_rate(bytes: usize, n: u64, tls: Option<&BenchTls>) -> Result<f64> {
     use zenoh::Wait;
     let port = free_port()?;
-    let endpoint = format!("tcp/127.0.0.1:{port}");
-    let a = LinkConfig::listening(std::slice::from_ref(&endpoint)).open()?;
-    let b = LinkConfig::connecting(&[endpoint]).open()?;
+    let endpoint = format!("{}/127.0.0.1:{port}", if tls.is_some() { "tls" } else { "tcp" });
+    let a =
+        LinkConfig::listening(std::slice::from_ref(&endpoint)).with_tls(tls.map(|t| t.learner_host.clone())).open()?;
+    let b = LinkConfig::connecting(&[endpoint]).with_tls(tls.map(|t| t.actor_host.clone())).open()?;
     let got = Arc::new(AtomicU64::new(0));
     let counter = got.clone();
     let _sub = a
@@ -496,57 +543,4 @@ fn plain_zenoh_rate(bytes: usize, n: u64) -> Result<f64> {
     pednav_bridge::link::close(b);
     pednav_bridge::link::close(a);
     Ok(rate)
-}
-
-/// A TCP relay between the hosts, so the bench can cut the link: it forwards every
-/// connection to `target`, and [`Relay::cut_later`] closes them all and refuses new
-/// ones for a while.
-struct Relay {
-    open: Arc<Mutex<Vec<TcpStream>>>,
-    refuse_until: Arc<Mutex<Option<Instant>>>,
-}
-
-impl Relay {
-    fn start(port: u16, target: u16) -> Result<Relay> {
-        let listener = TcpListener::bind(("127.0.0.1", port)).with_context(|| format!("relay port {port}"))?;
-        let relay = Relay { open: Arc::default(), refuse_until: Arc::default() };
-        let (open, refuse) = (relay.open.clone(), relay.refuse_until.clone());
-        std::thread::spawn(move || {
-            for inbound in listener.incoming().flatten() {
-                if refuse.lock().unwrap().is_some_and(|t| Instant::now() < t) {
-                    let _ = inbound.shutdown(Shutdown::Both);
-                    continue;
-                }
-                let Ok(outbound) = TcpStream::connect(("127.0.0.1", target)) else { continue };
-                let _ = (inbound.set_nodelay(true), outbound.set_nodelay(true));
-                for (from, to) in [(&inbound, &outbound), (&outbound, &inbound)] {
-                    let (Ok(mut from), Ok(mut to)) = (from.try_clone(), to.try_clone()) else { continue };
-                    std::thread::spawn(move || {
-                        let mut buf = vec![0u8; 1 << 16];
-                        while let Ok(n) = from.read(&mut buf) {
-                            if n == 0 || to.write_all(&buf[..n]).is_err() {
-                                break;
-                            }
-                        }
-                        let _ = (from.shutdown(Shutdown::Both), to.shutdown(Shutdown::Both));
-                    });
-                }
-                open.lock().unwrap().extend([inbound, outbound]);
-            }
-        });
-        Ok(relay)
-    }
-
-    /// After `after`, close every relayed connection and refuse new ones for `down`.
-    fn cut_later(&self, after: Duration, down: Duration) {
-        let (open, refuse) = (self.open.clone(), self.refuse_until.clone());
-        std::thread::spawn(move || {
-            std::thread::sleep(after);
-            *refuse.lock().unwrap() = Some(Instant::now() + down);
-            for s in open.lock().unwrap().drain(..) {
-                let _ = s.shutdown(Shutdown::Both);
-            }
-            eprintln!("link cut for {} s", down.as_secs());
-        });
-    }
 }

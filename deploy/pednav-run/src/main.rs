@@ -23,6 +23,7 @@ mod child;
 mod exit_cause;
 mod launch;
 mod multihost;
+mod relay;
 mod soak;
 mod supervisor;
 mod tls;

@@ -110,12 +110,16 @@ pub struct ActorStats {
     pub resend_timeouts: u64,
 }
 
+/// Jumps a [`StreamTally`] keeps the ranges of (the first ones; `resumed` counts all).
+pub const JUMPS_KEPT: usize = 64;
+
 /// One actor incarnation's stream as one learner process received it. The records a
-/// learner takes from a stream are one contiguous run of sequence numbers,
-/// `first_seq .. first_seq + records` ([`crate::reliable`]), unless `resumed` > 0 (it
-/// jumped over records a learner before it took); a learner that replaced a killed
-/// one may start below where its predecessor ended (records sent again).
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+/// learner takes from a stream are one increasing run of sequence numbers from
+/// `first_seq`, one by one ([`crate::reliable`]), except jumps over records a learner
+/// before it took (`resumed`, their ranges in `jumped`): `records` records in all, none
+/// inside a jumped range. A learner that replaced a killed one may start below where
+/// its predecessor ended (records sent again).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct StreamTally {
     /// Actor id.
@@ -137,6 +141,9 @@ pub struct StreamTally {
     /// 0 on one machine, where an acknowledgement reaches the actor before its next record.
     #[serde(default)]
     pub resumed: u64,
+    /// The records each jump went over, `[from, to)`, in order (the first [`JUMPS_KEPT`]).
+    #[serde(default)]
+    pub jumped: Vec<[u64; 2]>,
 }
 
 /// The learner process.
@@ -227,7 +234,8 @@ mod tests {
                 checksum: 99,
                 out_of_order: 0,
                 duplicates: 0,
-                resumed: 0,
+                resumed: 1,
+                jumped: vec![[3, 5]],
             }],
         };
         dir.write_stats("learner", &learner).unwrap();

@@ -15,9 +15,10 @@ pub struct Sent {
     pub exact: bool,
 }
 
-/// One learner process's count of one stream: the records it took are the contiguous
-/// sequence numbers `first .. first + records` (its cursor takes nothing out of order).
-#[derive(Clone, Copy, Debug, PartialEq)]
+/// One learner process's count of one stream: the records it took are `records`
+/// increasing sequence numbers from `first`, one by one, except the ranges it jumped
+/// over (its cursor takes nothing out of order; see [`Received::spans`]).
+#[derive(Clone, Debug, PartialEq)]
 pub struct Received {
     /// The first record's sequence number (`None`: it took none).
     pub first: Option<u64>,
@@ -25,6 +26,32 @@ pub struct Received {
     pub records: u64,
     /// The CRC-32 sum of those records.
     pub checksum: u32,
+    /// The ranges `[from, to)` it jumped over (records a learner before it took), in order.
+    pub jumped: Vec<[u64; 2]>,
+}
+
+impl Received {
+    /// The records it took, as contiguous spans `[a, b)`: from `first`, `records` in
+    /// all, stepping over each jumped range.
+    pub fn spans(&self) -> Vec<(u64, u64)> {
+        let Some(first) = self.first else { return Vec::new() };
+        let (mut spans, mut at, mut left) = (Vec::new(), first, self.records);
+        for &[from, to] in &self.jumped {
+            if from < at || to < from {
+                continue; // not after what it took so far: not a jump of this run
+            }
+            let n = (from - at).min(left);
+            if n > 0 {
+                spans.push((at, at + n));
+            }
+            left -= n;
+            at = to;
+        }
+        if left > 0 {
+            spans.push((at, at + left));
+        }
+        spans
+    }
 }
 
 /// The accounting of one actor incarnation's stream.
@@ -117,8 +144,7 @@ pub(super) fn intake_before(points: &[LearnerPoint], pid: u64, at: f64) -> Optio
 /// learners ([`died_allowance`], summed over the restarts it crossed).
 pub fn account(sent: Option<Sent>, received: &[Received], died_allowance: Option<u64>) -> Verdict {
     let Some(sent) = sent else { return Verdict::Unknown };
-    let mut spans: Vec<(u64, u64)> =
-        received.iter().filter_map(|r| r.first.map(|f| (f, f + r.records))).filter(|(a, b)| b > a).collect();
+    let mut spans: Vec<(u64, u64)> = received.iter().flat_map(Received::spans).filter(|(a, b)| b > a).collect();
     spans.sort_unstable();
     let end = spans.iter().map(|s| s.1).max().unwrap_or(0);
     if sent.exact && end > sent.steps {

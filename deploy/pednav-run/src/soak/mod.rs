@@ -49,6 +49,19 @@
 //!   The report gives it separately, with each learner restart's rollback to its
 //!   checkpoint.
 //!
+//! - **Across hosts** (`--across-hosts`): the same run split over two hosts on this
+//!   machine — a learner host with no actors of its own (`launch --actors 0 --listen
+//!   tcp/127.0.0.1:P`, run directory `<run>/learner-host`) and an actor host with the
+//!   actors (`join`, `<run>/actor-host`), whose link goes through a TCP relay on
+//!   loopback ([`crate::relay`]). The kinds of victim add each host's bridge (SIGKILL;
+//!   its launcher restarts it) and the link (every connection closed and new ones
+//!   refused for `--link-cut-secs`). The accounting is the same, with the actors'
+//!   stats from the actor host's directory and the learner's from the learner host's;
+//!   a learner that jumps over records (a dead learner's last acknowledgement can reach
+//!   an actor across the link after its replacement took older records) is allowed
+//!   only on a stream that crossed a learner restart, and what it jumped over counts
+//!   against the same allowance. The actor host is stopped first, then the learner host.
+//!
 //! The report is a Markdown table on stdout and `soak.json` in the run directory; the
 //! command fails (after reporting) when a kind was not killed, the launcher did not
 //! restart a victim, training did not continue, a step was lost, or the run did not
@@ -75,6 +88,7 @@ use rand_chacha::rand_core::{RngCore, SeedableRng};
 use serde_json::{Value, json};
 
 mod accounting;
+mod hosts;
 mod observe;
 mod procfs;
 mod report;
@@ -82,11 +96,12 @@ mod schedule;
 
 use accounting::intake_before;
 pub use accounting::{Received, Sent, account, died_allowance};
+use hosts::HostRun;
 use observe::{LearnerPoint, Observer, Sample, read_stats};
 use procfs::sigkill_verified;
 pub use procfs::{find_victim, is_victim};
 use report::Report;
-pub use schedule::{PlannedKill, Victim, kill_schedule};
+pub use schedule::{Host, PlannedKill, Victim, kill_schedule, victim_kinds};
 
 /// The supervisor's restart budget: a process that dies more than this many times
 /// within [`SUPERVISOR_RESTART_WINDOW_SECS`] ends the run.
@@ -134,6 +149,17 @@ pub struct Soak {
     /// [0.5, 1.5] × this. The first kill waits for the learner's first update.
     #[arg(long, default_value_t = 120.0)]
     mean_kill_interval_secs: f64,
+    /// Run the soak across two hosts on this machine: a learner host with no actors
+    /// of its own and an actor host with the --actors, each with its run directory
+    /// under the soak's (`learner-host/`, `actor-host/`), joined over a TCP relay on
+    /// loopback that the soak can cut. The victims then also include each host's
+    /// bridge and the link.
+    #[arg(long)]
+    across_hosts: bool,
+    /// How long each cut of the link lasts, seconds (--across-hosts); less than half
+    /// the mean kill interval, so the link is back before the next kill.
+    #[arg(long, default_value_t = 15.0)]
+    link_cut_secs: f64,
 }
 
 /// A restart the launcher announced.
@@ -141,7 +167,8 @@ pub struct Soak {
 pub struct Restart {
     /// Seconds after the launch the line arrived.
     pub at: f64,
-    /// The supervisor's process name (`learner`, `curriculum`, `actor-K`).
+    /// The supervisor's process name (`learner`, `curriculum`, `actor-K`; across hosts
+    /// a bridge's with its host, `learner-host/bridge` or `actor-host/bridge`).
     pub process: String,
     /// How it ended (`signal: 9 (SIGKILL)`, `hung: …`).
     pub status: String,
@@ -154,27 +181,29 @@ fn unix_now() -> f64 {
     std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map_or(0.0, |d| d.as_secs_f64())
 }
 
-/// Take the restarts the launcher recorded since the last look (`restarts.jsonl`,
-/// [`pednav_runtime::RestartRecord`]) into the log, timed from the soak's start.
-fn take_restarts(dir: &RunDir, started_unix: f64, log: &Mutex<LauncherLog>) {
+/// Take the restarts `host`'s launcher recorded since the last look (`restarts.jsonl`
+/// of its run directory, [`pednav_runtime::RestartRecord`]) into the log, timed from
+/// the soak's start. Across hosts both launchers have a `bridge`: its name gets the
+/// host's ([`Victim::process`]).
+fn take_restarts(dir: &RunDir, host: Host, across_hosts: bool, started_unix: f64, log: &Mutex<LauncherLog>) {
     let records = dir.read_restarts();
     let mut l = log.lock().unwrap();
-    let seen = l.restarts.len();
+    let seen = l.taken.get(&host).copied().unwrap_or(0);
+    l.taken.insert(host, records.len().max(seen));
     for r in records.into_iter().skip(seen) {
-        l.restarts.push(Restart {
-            at: r.unix_time - started_unix,
-            process: r.process,
-            status: r.status,
-            number: r.restart,
-        });
+        let process =
+            if across_hosts && r.process == "bridge" { format!("{}/bridge", host.label()) } else { r.process };
+        l.restarts.push(Restart { at: r.unix_time - started_unix, process, status: r.status, number: r.restart });
     }
 }
 
-/// What the launcher's stderr told.
+/// What the launchers' stderr and restart records told.
 #[derive(Default)]
 struct LauncherLog {
     restarts: Vec<Restart>,
-    /// The `restarts N` of its last progress line.
+    /// Restart records taken so far, per host.
+    taken: BTreeMap<Host, usize>,
+    /// The `restarts N` of the learner host's last progress line.
     progress_restarts: Option<u32>,
     lines: Vec<String>,
 }
@@ -244,9 +273,16 @@ fn secs(x: Option<f64>) -> String {
 
 /// Run the soak of `args` (see the module doc).
 pub fn run(args: Soak) -> Result<()> {
-    let Soak { minutes, seed, actors, config, run_dir, mean_kill_interval_secs: mean } = args;
+    let Soak { minutes, seed, actors, config, run_dir, mean_kill_interval_secs: mean, across_hosts, link_cut_secs } =
+        args;
     let duration = minutes * 60.0;
-    let schedule = kill_schedule(seed, duration, mean, actors)?;
+    let schedule = kill_schedule(seed, duration, mean, actors, across_hosts)?;
+    if across_hosts && !(link_cut_secs.is_finite() && link_cut_secs > 0.0 && link_cut_secs < 0.5 * mean) {
+        bail!(
+            "--link-cut-secs must be positive and less than half of --mean-kill-interval-secs ({mean} s), so the link \
+             is back before the next kill; got {link_cut_secs}"
+        );
+    }
     let config = resolve_config(&config)?;
     let cfg = RunConfig::load(&config)?;
     let (run_dir, given) = match run_dir {
@@ -259,9 +295,16 @@ pub fn run(args: Soak) -> Result<()> {
     std::fs::create_dir_all(&run_dir)?;
     let bin = run_dir.join("bin");
     snapshot_binaries(&bin)?;
+    // One host: the run is the soak's directory. Across hosts: one run directory each.
+    let (learner_dir, actor_dir) = if across_hosts {
+        (run_dir.join(Host::Learner.label()), run_dir.join(Host::Actors.label()))
+    } else {
+        (run_dir.clone(), run_dir.clone())
+    };
     eprintln!(
-        "soak: {minutes} min, seed {seed}, {actors} actor(s), {}, run directory {}\nsoak: schedule (s after the \
+        "soak: {minutes} min, seed {seed}, {actors} actor(s){}, {}, run directory {}\nsoak: schedule (s after the \
          launch; the first kill waits for the learner's first update): {}",
+        if across_hosts { format!(" on an actor host, link cuts of {link_cut_secs} s") } else { String::new() },
         config.display(),
         run_dir.display(),
         schedule.iter().map(|k| format!("{:.1} {}", k.at_secs, k.victim.process())).collect::<Vec<_>>().join(", ")
@@ -271,63 +314,107 @@ pub fn run(args: Soak) -> Result<()> {
     let start = Instant::now();
     let started_unix = unix_now();
     let now = move || start.elapsed().as_secs_f64();
-    let mut cmd = Command::new(bin.join("pednav-run"));
-    cmd.arg("launch")
-        .args(["--actors", &actors.to_string()])
-        .arg("--config")
-        .arg(&config)
-        .arg("--run-dir")
-        .arg(&run_dir)
-        .arg("--bin-dir")
-        .arg(&bin)
-        .stdin(Stdio::null())
-        .stdout(Stdio::null())
-        .stderr(Stdio::piped());
-    // SAFETY: only async-signal-safe calls between fork and exec. The launcher stops
-    // its run when this soak dies.
-    unsafe {
-        cmd.pre_exec(|| {
-            libc::prctl(libc::PR_SET_PDEATHSIG, libc::SIGINT);
-            Ok(())
-        });
-    }
-    let mut launcher = cmd.spawn().context("starting pednav-run launch")?;
-    let launcher_pid = launcher.id();
     let log = Arc::new(Mutex::new(LauncherLog::default()));
-    let reader = {
-        let (log, stderr) = (log.clone(), launcher.stderr.take().expect("piped"));
-        let mut file = std::fs::File::create(run_dir.join("soak-launcher.log"))?;
-        std::thread::spawn(move || {
-            for line in BufReader::new(stderr).lines().map_while(std::io::Result::ok) {
-                let _ = writeln!(file, "{line}");
-                if line.trim().is_empty() {
-                    continue;
-                }
-                eprintln!("  launcher | {line}");
-                let mut l = log.lock().unwrap();
-                if line.starts_with('[')
-                    && let Some(n) = line.rsplit_once("restarts ").and_then(|(_, n)| n.trim().parse().ok())
-                {
-                    l.progress_restarts = Some(n);
-                }
-                l.lines.push(line);
+    let launcher_bin = bin.join("pednav-run");
+    let strings = |v: &[&str]| v.iter().map(|a| a.to_string()).collect::<Vec<_>>();
+    let common =
+        |dir: &Path| strings(&["--run-dir", &dir.display().to_string(), "--bin-dir", &bin.display().to_string()]);
+    let mut relay = None;
+    let mut hosts = Vec::new();
+    if across_hosts {
+        let (learner_port, relay_port) = (crate::relay::free_port()?, crate::relay::free_port()?);
+        // Bound at once (nothing else can take the port); until the learner host listens
+        // it drops what it cannot forward.
+        relay = Some(crate::relay::Relay::start(relay_port, learner_port)?);
+        let learner_args = [
+            strings(&["launch", "--actors", "0", "--listen", &format!("tcp/127.0.0.1:{learner_port}"), "--config"]),
+            vec![config.display().to_string()],
+            common(&learner_dir),
+        ]
+        .concat();
+        let learner_log = run_dir.join("soak-learner-host.log");
+        hosts.push(HostRun::start(
+            Host::Learner,
+            &learner_dir,
+            &launcher_bin,
+            &learner_args,
+            &learner_log,
+            "learner host",
+            &log,
+        )?);
+        // The actor host joins once the learner host's bridge listens (a join gives up
+        // after 30 s).
+        let listening = Instant::now();
+        while std::net::TcpStream::connect(("127.0.0.1", learner_port)).is_err() {
+            if let Some(status) = hosts[0].launcher.try_wait()? {
+                bail!("the learner host ended ({status}) before it listened (see {})", learner_log.display());
             }
-        })
-    };
+            if stop.is_set() {
+                bail!("interrupted before the learner host listened");
+            }
+            if listening.elapsed() > Duration::from_secs(120) {
+                bail!(
+                    "the learner host did not listen on port {learner_port} within 120 s (see {})",
+                    learner_log.display()
+                );
+            }
+            std::thread::sleep(Duration::from_millis(200));
+        }
+        let actor_args = [
+            strings(&[
+                "join",
+                "--connect",
+                &format!("tcp/127.0.0.1:{relay_port}"),
+                "--actors",
+                &actors.to_string(),
+                "--host",
+                "soak-actors",
+            ]),
+            common(&actor_dir),
+        ]
+        .concat();
+        let actor_log = run_dir.join("soak-actor-host.log");
+        hosts.push(HostRun::start(
+            Host::Actors,
+            &actor_dir,
+            &launcher_bin,
+            &actor_args,
+            &actor_log,
+            "actor host",
+            &log,
+        )?);
+    } else {
+        let args = [
+            strings(&["launch", "--actors", &actors.to_string(), "--config"]),
+            vec![config.display().to_string()],
+            common(&run_dir),
+        ]
+        .concat();
+        hosts.push(HostRun::start(
+            Host::Learner,
+            &run_dir,
+            &launcher_bin,
+            &args,
+            &run_dir.join("soak-launcher.log"),
+            "launcher",
+            &log,
+        )?);
+    }
 
-    let dir = RunDir::new(&run_dir);
-    let mut obs = Observer::new(dir.clone(), actors);
+    let mut obs = Observer::new(RunDir::new(&learner_dir), RunDir::new(&actor_dir), actors);
     let (mut kills, mut skipped) = (Vec::<KillRecord>::new(), Vec::<PlannedKill>::new());
-    let (mut next, mut training_started, mut early_exit) = (0, None::<f64>, None::<ExitStatus>);
+    let (mut next, mut training_started, mut early_exit) = (0, None::<f64>, None::<(Host, ExitStatus)>);
     let proc_root = Path::new("/proc");
-    while now() < duration && !stop.is_set() {
+    'soak: while now() < duration && !stop.is_set() {
         std::thread::sleep(POLL);
         let t = now();
         obs.poll(t);
-        take_restarts(&dir, started_unix, &log);
-        if let Some(status) = launcher.try_wait()? {
-            early_exit = Some(status);
-            break;
+        for h in &mut hosts {
+            take_restarts(&RunDir::new(&h.dir), h.host, across_hosts, started_unix, &log);
+            if let Some(status) = h.launcher.try_wait()? {
+                early_exit = Some((h.host, status));
+                break 'soak;
+            }
         }
         if training_started.is_none() && obs.samples.iter().any(|s| s.updates > 0) {
             training_started = Some(t);
@@ -338,7 +425,24 @@ pub fn run(args: Soak) -> Result<()> {
         if t < due {
             continue;
         }
-        let Some(pid) = find_victim(proc_root, launcher_pid, &run_dir, plan.victim) else {
+        obs.poll(now());
+        let before = obs.last_sample();
+        if plan.victim == Victim::Link {
+            let relay = relay.as_ref().expect("a link victim only across hosts");
+            relay.cut_later(Duration::ZERO, Duration::from_secs_f64(link_cut_secs));
+            let at = now();
+            eprintln!(
+                "soak: [{at:.1} s] link cut for {link_cut_secs} s at env steps {}, updates {}",
+                before.map_or(0, |s| s.env_steps),
+                before.map_or(0, |s| s.updates)
+            );
+            kills.push(KillRecord { plan, at, pid: 0, before, incarnation: None });
+            next += 1;
+            continue;
+        }
+        let victim_host = hosts.iter().find(|r| r.host == plan.victim.host()).unwrap_or(&hosts[0]);
+        let (launcher_pid, victim_dir) = (victim_host.pid, victim_host.dir.clone());
+        let Some(pid) = find_victim(proc_root, launcher_pid, &victim_dir, plan.victim) else {
             if t - due > VICTIM_WAIT_SECS {
                 eprintln!(
                     "soak: [{t:.1} s] no {} process for {VICTIM_WAIT_SECS} s: kill skipped",
@@ -349,15 +453,13 @@ pub fn run(args: Soak) -> Result<()> {
             }
             continue;
         };
-        obs.poll(now());
         let incarnation = match plan.victim {
-            Victim::Actor(k) => read_stats::<ActorStats>(&dir, &stats::actor_live(k))
+            Victim::Actor(k) => read_stats::<ActorStats>(&RunDir::new(&actor_dir), &stats::actor_live(k))
                 .filter(|v| v.pid as u64 == pid as u64)
                 .map(|v| v.incarnation as u64),
             _ => None,
         };
-        let before = obs.last_sample();
-        match sigkill_verified(pid, || is_victim(proc_root, pid, launcher_pid, &run_dir, plan.victim)) {
+        match sigkill_verified(pid, || is_victim(proc_root, pid, launcher_pid, &victim_dir, plan.victim)) {
             Ok(()) => {
                 let at = now();
                 eprintln!(
@@ -373,29 +475,22 @@ pub fn run(args: Soak) -> Result<()> {
         }
     }
     let stopped_at = now();
-    let exit = match early_exit {
-        Some(s) => s,
-        None => {
-            eprintln!("soak: [{stopped_at:.1} s] stopping the run (SIGINT to the launcher, pid {launcher_pid})");
-            // SAFETY: signalling our own child.
-            unsafe { libc::kill(launcher_pid as libc::pid_t, libc::SIGINT) };
-            let waited = Instant::now();
-            loop {
-                if let Some(s) = launcher.try_wait()? {
-                    break s;
-                }
-                if waited.elapsed() > STOP_WAIT {
-                    eprintln!("soak: the launcher did not stop within {STOP_WAIT:?}; killing it");
-                    let _ = launcher.kill();
-                    break launcher.wait()?;
-                }
-                std::thread::sleep(Duration::from_millis(100));
-            }
-        }
-    };
-    let _ = reader.join();
+    // The actor host first (its actors stop, its bridge hands on what they sent), then
+    // the learner host (the learner drains and writes its final checkpoint).
+    let mut exits = Vec::new();
+    for h in hosts.iter_mut().rev() {
+        exits.push((h.host, h.stop(now())?));
+    }
+    exits.reverse();
+    for h in hosts {
+        let _ = h.reader.join();
+    }
     let end = now();
     obs.poll(end);
+    for h in [Host::Learner, Host::Actors].into_iter().filter(|h| across_hosts || *h == Host::Learner) {
+        let d = if h == Host::Learner { &learner_dir } else { &actor_dir };
+        take_restarts(&RunDir::new(d), h, across_hosts, started_unix, &log);
+    }
     let log = std::mem::take(&mut *log.lock().unwrap());
 
     let report = Report {
@@ -405,7 +500,11 @@ pub fn run(args: Soak) -> Result<()> {
         actors,
         minutes,
         mean,
+        across_hosts,
+        link_cut_secs,
         run_dir: &run_dir,
+        learner_dir: &learner_dir,
+        actor_dir: &actor_dir,
         schedule: &schedule,
         kills: &kills,
         skipped: &skipped,
@@ -414,8 +513,8 @@ pub fn run(args: Soak) -> Result<()> {
         training_started,
         stopped_at,
         end,
-        exit,
-        early: early_exit.is_some(),
+        exits: &exits,
+        early: early_exit,
         interrupted: stop.is_set(),
     };
     let (markdown, json, failures) = report.build();
@@ -450,19 +549,27 @@ mod tests {
     /// enough to spend its restart budget — for the default soak and the short one.
     #[test]
     fn the_kill_schedule_is_seeded_covers_every_kind_and_keeps_its_intervals() {
-        let a = kill_schedule(1, 1800.0, 120.0, 2).unwrap();
-        assert_eq!(a, kill_schedule(1, 1800.0, 120.0, 2).unwrap());
-        assert_ne!(a, kill_schedule(2, 1800.0, 120.0, 2).unwrap());
-        for (duration, mean, actors) in [(1800.0, 120.0, 2), (1800.0, 120.0, 5), (180.0, 40.0, 2)] {
+        let a = kill_schedule(1, 1800.0, 120.0, 2, false).unwrap();
+        assert_eq!(a, kill_schedule(1, 1800.0, 120.0, 2, false).unwrap());
+        assert_ne!(a, kill_schedule(2, 1800.0, 120.0, 2, false).unwrap());
+        // One host: the three kinds only. Across hosts: the bridges and the link too.
+        assert!(a.iter().all(|k| k.victim.is_process() && victim_kinds(false).contains(&k.victim.kind())));
+        for (duration, mean, actors, across) in [
+            (1800.0, 120.0, 2, false),
+            (1800.0, 120.0, 5, false),
+            (180.0, 40.0, 2, false),
+            (1800.0, 120.0, 2, true),
+            (720.0, 60.0, 2, true),
+        ] {
             let mut actors_hit = std::collections::BTreeSet::new();
             let mut refused = 0;
             for seed in 0..200 {
-                let Ok(s) = kill_schedule(seed, duration, mean, actors) else {
+                let Ok(s) = kill_schedule(seed, duration, mean, actors, across) else {
                     refused += 1;
                     continue;
                 };
-                for kind in ["learner", "curriculum", "actor"] {
-                    assert!(kinds(&s).contains(&kind), "seed {seed}: no {kind} in {s:?}");
+                for kind in victim_kinds(across) {
+                    assert!(kinds(&s).contains(kind), "seed {seed}: no {kind} in {s:?}");
                 }
                 let mut t = 0.0;
                 for k in &s {
@@ -487,25 +594,28 @@ mod tests {
                 }
             }
             assert_eq!(actors_hit.len() as u32, actors, "every actor is drawn by some seed");
-            if duration >= 1800.0 {
-                assert_eq!(refused, 0);
+            if duration >= 720.0 {
+                assert_eq!(refused, 0, "{duration} s, mean {mean} s, across hosts {across}");
             } else {
                 assert!(refused < 40, "{refused} of 200 short schedules refused");
             }
         }
         // The short validation soak of the README covers every kind with seed 1.
-        assert!(kill_schedule(1, 180.0, 40.0, 2).is_ok());
+        assert!(kill_schedule(1, 180.0, 40.0, 2, false).is_ok());
     }
 
     /// Schedules that cannot kill every kind, or could spend a restart budget, are refused.
     #[test]
     fn a_schedule_that_cannot_do_its_job_is_refused() {
-        let e = kill_schedule(1, 60.0, 120.0, 2).unwrap_err().to_string();
+        let e = kill_schedule(1, 60.0, 120.0, 2, false).unwrap_err().to_string();
         assert!(e.contains("too few to kill"), "{e}");
-        let e = kill_schedule(1, 1800.0, 5.0, 1).unwrap_err().to_string();
+        // Across hosts six kinds need more room than three.
+        let e = kill_schedule(1, 300.0, 120.0, 2, true).unwrap_err().to_string();
+        assert!(e.contains("too few to kill") && e.contains("link"), "{e}");
+        let e = kill_schedule(1, 1800.0, 5.0, 1, false).unwrap_err().to_string();
         assert!(e.contains("restart budget"), "{e}");
-        assert!(kill_schedule(1, 1800.0, 0.0, 2).is_err());
-        assert!(kill_schedule(1, 1800.0, 120.0, 0).is_err());
+        assert!(kill_schedule(1, 1800.0, 0.0, 2, false).is_err());
+        assert!(kill_schedule(1, 1800.0, 120.0, 0, false).is_err());
     }
 
     fn fake_proc(root: &Path, pid: u32, ppid: u32, state: &str, args: &[&str]) {
@@ -593,10 +703,22 @@ mod tests {
             "R (running)",
             &["/w/not-pednav-actor", "--run-dir", "/tmp/pednav-soak-s1-99", "--actor", "1"],
         );
+        // A bridge of this run (`pednav-run bridge`), and the launcher itself, which runs
+        // the same binary with the same run directory but is no child of itself.
+        fake_proc(
+            &root,
+            506,
+            me,
+            "S (sleeping)",
+            &[&format!("{bin}pednav-run"), "bridge", "--run-dir", "/tmp/pednav-soak-s1-99", "--listen", "tcp/x"],
+        );
         std::fs::create_dir_all(root.join("self")).unwrap();
         assert_eq!(find_victim(&root, me, run, Victim::Curriculum), Some(501));
         assert_eq!(find_victim(&root, me, run, Victim::Learner), Some(502));
         assert_eq!(find_victim(&root, me, run, Victim::Actor(0)), Some(503));
+        assert_eq!(find_victim(&root, me, run, Victim::LearnerHostBridge), Some(506));
+        assert!(!is_victim(&root, me, 1, run, Victim::LearnerHostBridge), "the launcher is not its bridge");
+        assert_eq!(find_victim(&root, me, run, Victim::Link), None, "the link is no process");
         assert_eq!(
             find_victim(&root, me, run, Victim::Actor(1)),
             None,
@@ -620,7 +742,7 @@ mod tests {
     #[test]
     fn streams_are_accounted_as_the_end_to_end_test_does() {
         let sent = |steps, checksum, exact| Some(Sent { steps, checksum, exact });
-        let rec = |first, records, checksum| Received { first: Some(first), records, checksum };
+        let rec = |first, records, checksum| Received { first: Some(first), records, checksum, jumped: Vec::new() };
         // Whole, over one learner or split over two (checksums add, wrapping).
         assert_eq!(account(sent(100, 7, true), &[rec(0, 100, 7)], None), Verdict::Whole);
         assert_eq!(account(sent(100, 7, true), &[rec(0, 60, u32::MAX), rec(60, 40, 8)], Some(30)), Verdict::Whole);
@@ -639,7 +761,11 @@ mod tests {
         assert_eq!(account(sent(100, 7, true), &[rec(10, 90, 1)], None), Verdict::Lost(10), "a missing beginning");
         assert_eq!(account(sent(100, 7, true), &[rec(0, 101, 7)], None), Verdict::Excess(1));
         assert_eq!(
-            account(sent(100, 7, true), &[Received { first: None, records: 0, checksum: 0 }, rec(0, 100, 7)], None),
+            account(
+                sent(100, 7, true),
+                &[Received { first: None, records: 0, checksum: 0, jumped: Vec::new() }, rec(0, 100, 7)],
+                None
+            ),
             Verdict::Whole,
             "a learner that took nothing of the stream adds nothing"
         );
@@ -648,6 +774,15 @@ mod tests {
         assert_eq!(account(sent(100, 7, false), &[rec(0, 90, 9)], None), Verdict::Lost(10));
         assert_eq!(account(sent(100, 7, false), &[rec(0, 90, 9)], Some(10)), Verdict::DiedWithLearnerAtLeast(10));
         assert_eq!(account(None, &[rec(0, 5, 1)], None), Verdict::Unknown);
+        // Across hosts a learner can jump over records its predecessor took (its last ack
+        // arrived late): its records are not one run. The predecessor took 0 .. 50, the
+        // replacement 30 .. 45 (sent again), jumped over 45 .. 50, then took 50 .. 100:
+        // whole, 15 twice. Read as one run (30 .. 95) it would miss 95 .. 100.
+        let jumper = Received { first: Some(30), records: 65, checksum: 2, jumped: vec![[45, 50]] };
+        assert_eq!(jumper.spans(), vec![(30, 45), (50, 100)]);
+        assert_eq!(account(sent(100, 7, true), &[rec(0, 50, 1), jumper.clone()], Some(0)), Verdict::WholeResent(15));
+        // The predecessor's stats stopped at 40: 40 .. 45 came again, 45 .. 50 died with it.
+        assert_eq!(account(sent(100, 7, true), &[rec(0, 40, 1), jumper], Some(10)), Verdict::DiedWithLearner(5));
         // A killed learner's allowance: 1.5 × its intake since its last stats write (and
         // one poll); its queue is sent again, so it is no part of it.
         assert_eq!(died_allowance(0.0, 0.5), 0);

@@ -1,5 +1,7 @@
 //! What the soak sees of the run while it runs: the learner's metrics rows and stats
-//! (tagged by pid) and each actor incarnation's live stats, polled every [`POLL`].
+//! (tagged by pid) and each actor incarnation's live stats, polled every [`POLL`] —
+//! across hosts, the learner's from the learner host's run directory and the actors'
+//! from the actor host's.
 
 use super::*;
 
@@ -26,7 +28,10 @@ pub(super) struct LearnerPoint {
 
 /// The run's stats and metrics as polled.
 pub(super) struct Observer {
+    /// The learner's run directory.
     pub(super) dir: RunDir,
+    /// The actors' run directory (the same on one host).
+    pub(super) actor_dir: RunDir,
     pub(super) actors: u32,
     pub(super) csv_pos: u64,
     pub(super) csv_pending: Vec<u8>,
@@ -49,9 +54,10 @@ pub(super) fn read_stats<T: serde::de::DeserializeOwned>(dir: &RunDir, name: &st
 }
 
 impl Observer {
-    pub(super) fn new(dir: RunDir, actors: u32) -> Observer {
+    pub(super) fn new(dir: RunDir, actor_dir: RunDir, actors: u32) -> Observer {
         Observer {
             dir,
+            actor_dir,
             actors,
             csv_pos: 0,
             csv_pending: Vec::new(),
@@ -85,7 +91,7 @@ impl Observer {
             self.learners.insert(pid, v);
         }
         for k in 0..self.actors {
-            if let Some(v) = read_stats::<ActorStats>(&self.dir, &stats::actor_live(k)) {
+            if let Some(v) = read_stats::<ActorStats>(&self.actor_dir, &stats::actor_live(k)) {
                 let key = (v.actor as u64, v.incarnation as u64);
                 let sending = v.steps_sent > 0;
                 let entry = self.actors_live.entry(key).or_insert((v.clone(), None));

@@ -6,8 +6,12 @@ use super::*;
 
 /// Whether `pid` in the /proc-like folder `proc_root` is `victim` of the run in
 /// `run_dir`: a live child of `launcher` running the victim's binary with
-/// `--run-dir run_dir` exactly (and `--actor K` for actor K).
+/// `--run-dir run_dir` exactly (and `--actor K` for actor K, the subcommand `bridge`
+/// for a bridge). The link is no process.
 pub fn is_victim(proc_root: &Path, pid: u32, launcher: u32, run_dir: &Path, victim: Victim) -> bool {
+    if !victim.is_process() {
+        return false;
+    }
     let dir = proc_root.join(pid.to_string());
     let (Ok(cmdline), Ok(status)) = (std::fs::read(dir.join("cmdline")), std::fs::read_to_string(dir.join("status")))
     else {
@@ -26,7 +30,8 @@ pub fn is_victim(proc_root: &Path, pid: u32, launcher: u32, run_dir: &Path, vict
         && after("--run-dir") == Some(run_dir.as_os_str().as_bytes())
         && match victim {
             Victim::Actor(k) => after("--actor") == Some(k.to_string().as_bytes()),
-            Victim::Learner | Victim::Curriculum => true,
+            Victim::LearnerHostBridge | Victim::ActorHostBridge => args.get(1).copied() == Some(b"bridge".as_slice()),
+            Victim::Learner | Victim::Curriculum | Victim::Link => true,
         }
 }
 

@@ -11,7 +11,14 @@ pub(super) struct Report<'a> {
     pub(super) actors: u32,
     pub(super) minutes: f64,
     pub(super) mean: f64,
+    pub(super) across_hosts: bool,
+    pub(super) link_cut_secs: f64,
+    /// The soak's directory (on one host, the run's).
     pub(super) run_dir: &'a Path,
+    /// The learner's run directory (across hosts, the learner host's).
+    pub(super) learner_dir: &'a Path,
+    /// The actors' run directory (across hosts, the actor host's).
+    pub(super) actor_dir: &'a Path,
     pub(super) schedule: &'a [PlannedKill],
     pub(super) kills: &'a [KillRecord],
     pub(super) skipped: &'a [PlannedKill],
@@ -20,12 +27,19 @@ pub(super) struct Report<'a> {
     pub(super) training_started: Option<f64>,
     pub(super) stopped_at: f64,
     pub(super) end: f64,
-    pub(super) exit: ExitStatus,
-    pub(super) early: bool,
+    /// Each launcher's exit (on one host, one).
+    pub(super) exits: &'a [(Host, ExitStatus)],
+    /// The launcher that ended before the soak did.
+    pub(super) early: Option<(Host, ExitStatus)>,
     pub(super) interrupted: bool,
 }
 
 impl Report<'_> {
+    /// How the report names `host`'s launcher: `launcher` on one host.
+    fn launcher(&self, host: Host) -> String {
+        if self.across_hosts { format!("{} launcher", host.label()) } else { "launcher".into() }
+    }
+
     /// The Markdown report, `soak.json`'s content and the failures.
     pub(super) fn build(&self) -> (String, Value, Vec<String>) {
         let mut failures = Vec::new();
@@ -33,23 +47,36 @@ impl Report<'_> {
         let obs = self.obs;
         let restarts = &self.log.restarts;
         let warmup = self.cfg.dsac.warmup;
+        let exits =
+            self.exits.iter().map(|(h, e)| format!("{}: {e}", self.launcher(*h))).collect::<Vec<_>>().join(", ");
         md += &format!(
-            "## Soak: {} min, seed {}, {} actor(s), {}\n\nRun directory `{}`; launched at 0 s, learner updating from \
-             {}, stopped (SIGINT) at {:.1} s, launcher exited at {:.1} s ({}).\n\n",
+            "## Soak: {} min, seed {}, {} actor(s){}, {}\n\nRun directory `{}`; launched at 0 s, learner updating from \
+             {}, stopped (SIGINT) at {:.1} s, exited by {:.1} s ({exits}).\n\n",
             self.minutes,
             self.seed,
             self.actors,
+            if self.across_hosts {
+                format!(
+                    " across two hosts on this machine (a learner host with no actors, an actor host; link through a \
+                     loopback relay, cuts of {} s)",
+                    self.link_cut_secs
+                )
+            } else {
+                String::new()
+            },
             self.config.display(),
             self.run_dir.display(),
             secs(self.training_started),
             self.stopped_at,
             self.end,
-            self.exit
         );
-        if self.early {
-            failures.push(format!("the launcher ended before the soak did ({})", self.exit));
-        } else if !self.exit.success() {
-            failures.push(format!("the launcher did not stop cleanly after SIGINT ({})", self.exit));
+        if let Some((host, e)) = self.early {
+            failures.push(format!("the {} ended before the soak did ({e})", self.launcher(host)));
+        }
+        for (host, e) in self.exits {
+            if self.early.is_none() && !e.success() {
+                failures.push(format!("the {} did not stop cleanly after SIGINT ({e})", self.launcher(*host)));
+            }
         }
         if self.interrupted {
             failures.push("the soak was interrupted (Ctrl-C) before its end".into());
@@ -68,7 +95,11 @@ impl Report<'_> {
                         r.clone()
                     },
                 );
-            let after_restart = restart.as_ref().map_or(k.at, |r| r.at);
+            // After a link cut, training must go on once the link is back.
+            let after_restart = match k.plan.victim {
+                Victim::Link => k.at + self.link_cut_secs,
+                _ => restart.as_ref().map_or(k.at, |r| r.at),
+            };
             let new_learner = |p: &&LearnerPoint| p.t > k.at && p.pid != k.pid as u64;
             let continued = k.before.and_then(|b| {
                 obs.points
@@ -125,6 +156,12 @@ impl Report<'_> {
                 Victim::Curriculum => {
                     notes = "resumes its saved state (count below)".into();
                 }
+                Victim::LearnerHostBridge | Victim::ActorHostBridge => {
+                    notes = "what it carried is held by the actors and sent again (streams below)".into();
+                }
+                Victim::Link => {
+                    notes = format!("every connection closed, new ones refused for {} s", self.link_cut_secs);
+                }
                 Victim::Actor(a) => {
                     if let Some(inc) = k.incarnation {
                         let sending = obs.actors_live.get(&(a as u64, inc + 1)).and_then(|(_, t)| *t).map(|t| t - k.at);
@@ -139,14 +176,18 @@ impl Report<'_> {
                 k.plan.at_secs,
                 k.at,
                 process,
-                k.pid,
+                if k.plan.victim.is_process() { k.pid.to_string() } else { "—".into() },
                 k.before.map_or("—".into(), |b| b.env_steps.to_string()),
                 k.before.map_or("—".into(), |b| b.updates.to_string()),
-                restart.as_ref().map_or("**none**".into(), |r| format!("+{:.1} s (restart {})", r.at - k.at, r.number)),
+                match (&restart, k.plan.victim.is_process()) {
+                    (Some(r), _) => format!("+{:.1} s (restart {})", r.at - k.at, r.number),
+                    (None, true) => "**none**".into(),
+                    (None, false) => format!("— (link back after {} s)", self.link_cut_secs),
+                },
                 continued.map_or("**no**".into(), |c| format!("{c:.1} s")),
                 notes
             );
-            if restart.is_none() {
+            if restart.is_none() && k.plan.victim.is_process() {
                 failures.push(format!("kill {} ({process}): the launcher reported no restart", i + 1));
             }
             if continued.is_none() {
@@ -160,7 +201,7 @@ impl Report<'_> {
                 "at_s": k.at,
                 "victim": k.plan.victim.kind(),
                 "process": process,
-                "pid": k.pid,
+                "pid": k.plan.victim.is_process().then_some(k.pid),
                 "env_steps_at_kill": k.before.map(|b| b.env_steps),
                 "updates_at_kill": k.before.map(|b| b.updates),
                 "restart": restart.as_ref().map(|r| json!({"after_s": r.at - k.at, "number": r.number, "status": r.status})),
@@ -176,7 +217,7 @@ impl Report<'_> {
             );
         }
         let mut per_kind = BTreeMap::new();
-        for kind in ["learner", "curriculum", "actor"] {
+        for &kind in victim_kinds(self.across_hosts) {
             let n = self.kills.iter().filter(|k| k.plan.victim.kind() == kind).count();
             per_kind.insert(kind, n);
             if n == 0 {
@@ -190,27 +231,31 @@ impl Report<'_> {
             *by_process.entry(&r.process).or_default() += 1;
         }
         let unplanned: Vec<&Restart> = restarts.iter().zip(&used).filter(|(_, u)| !**u).map(|(r, _)| r).collect();
-        let curriculum_resumes = std::fs::read_to_string(self.run_dir.join("logs/curriculum.log"))
+        let curriculum_resumes = std::fs::read_to_string(self.learner_dir.join("logs/curriculum.log"))
             .map_or(0, |l| l.matches("resumed curriculum state").count());
         let curriculum_kills = per_kind["curriculum"];
         md += &format!(
-            "\nKills: learner {}, curriculum {}, actor {} (of {} planned{}). Restarts the launcher reported: {} \
-             (its last progress line: {}){}. The curriculum service resumed its saved state {} time(s) for {} \
-             restart(s).\n",
-            per_kind["learner"],
-            per_kind["curriculum"],
-            per_kind["actor"],
+            "\nKills: {} (of {} planned{}). Restarts the launcher{} reported: {} \
+             ({} last progress line: {}){}. The curriculum service resumed its saved state {} time(s) \
+             for {} restart(s).\n",
+            victim_kinds(self.across_hosts)
+                .iter()
+                .map(|k| format!("{k} {}", per_kind[k]))
+                .collect::<Vec<_>>()
+                .join(", "),
             self.schedule.len(),
             if self.kills.len() + self.skipped.len() < self.schedule.len() {
                 ", the rest fell after the end"
             } else {
                 ""
             },
+            if self.across_hosts { "s" } else { "" },
             if by_process.is_empty() {
                 "none".to_string()
             } else {
                 by_process.iter().map(|(p, n)| format!("{p} {n}")).collect::<Vec<_>>().join(", ")
             },
+            if self.across_hosts { "the learner host's" } else { "its" },
             self.log.progress_restarts.map_or("—".into(), |n| format!("restarts {n}")),
             if unplanned.is_empty() {
                 ", all of them the soak's kills".to_string()
@@ -238,7 +283,7 @@ impl Report<'_> {
 
         // End figures.
         let last = obs.last_sample();
-        let final_learner = read_stats::<LearnerStats>(&RunDir::new(self.run_dir), "learner");
+        let final_learner = read_stats::<LearnerStats>(&RunDir::new(self.learner_dir), "learner");
         let final_status = final_learner.as_ref().map(|v| v.status.as_str());
         md += &format!(
             "\nAt the end (metrics/learner.csv): env steps {}, updates {}; the last learner's status: {} (a final \
@@ -259,20 +304,19 @@ impl Report<'_> {
             views.push((pid, v));
         }
         let mut received: BTreeMap<(u64, u64), Vec<Received>> = BTreeMap::new();
+        // Jumps over records a learner before took, per stream: on one host an ack
+        // reaches the actor before its next record, so there are none; across hosts a
+        // dead learner's last ack can arrive after its replacement took older records
+        // (judged with the learner restarts below).
+        let mut jumps: BTreeMap<(u64, u64), u64> = BTreeMap::new();
         for (_, v) in &views {
             for s in &v.streams {
-                // On one machine an ack reaches the actor before its next record, so no
-                // learner jumps over records (the spans below rely on it).
-                if s.resumed > 0 {
-                    failures.push(format!(
-                        "actor {} incarnation {}: a learner jumped {} time(s) over records a learner before it took",
-                        s.actor, s.incarnation, s.resumed
-                    ));
-                }
+                *jumps.entry((s.actor as u64, s.incarnation as u64)).or_default() += s.resumed;
                 received.entry((s.actor as u64, s.incarnation as u64)).or_default().push(Received {
                     first: s.first_seq,
                     records: s.records,
                     checksum: s.checksum,
+                    jumped: s.jumped.clone(),
                 });
             }
         }
@@ -280,14 +324,15 @@ impl Report<'_> {
         for ((a, i), (v, _)) in &obs.actors_live {
             sent.insert((*a, *i), Sent { steps: v.steps_sent, checksum: v.checksum, exact: false });
         }
-        for entry in std::fs::read_dir(RunDir::new(self.run_dir).stats()).into_iter().flatten().flatten() {
+        let actor_run = RunDir::new(self.actor_dir);
+        for entry in std::fs::read_dir(actor_run.stats()).into_iter().flatten().flatten() {
             let name = entry.file_name().to_string_lossy().to_string();
             let Some(v) = name
                 .strip_prefix("actor-")
                 .and_then(|n| n.strip_suffix(".json"))
                 .and_then(|n| n.split_once('.'))
                 .filter(|(a, i)| a.parse::<u64>().is_ok() && i.parse::<u64>().is_ok())
-                .and_then(|_| read_stats::<ActorStats>(&RunDir::new(self.run_dir), name.trim_end_matches(".json")))
+                .and_then(|_| read_stats::<ActorStats>(&actor_run, name.trim_end_matches(".json")))
             else {
                 continue;
             };
@@ -317,9 +362,9 @@ impl Report<'_> {
         md += &format!(
             "\nSteps, actor → learner, per actor incarnation (`stats/actor-K.I.json`, or the last `actor-K.live.json` of \
              a killed one, against the `streams` of every learner process's `stats/learner.json`: each learner's \
-             records are one contiguous run of sequence numbers). A stream that did not cross a learner restart must \
-             arrive whole. Across a restart, the actors send the new learner again what the killed one took without \
-             acknowledging (its intake queue included); what is still missing died with the killed learner — taken \
+             records are one run of sequence numbers, less the ranges it jumped over). A stream that did not cross \
+             a learner restart must arrive whole. Across a restart, the actors send the new learner again what the \
+             killed one took without acknowledging (its intake queue included); what is still missing died with the killed learner — taken \
              and acknowledged after its last stats write, into its replay (not checkpointed) — and is allowed up to \
              1.5 × the killed learner's intake over the time since its last stats write; anything beyond is lost. A \
              restarted learner refills dsac.warmup = {warmup} steps before updating.\n\n| \
@@ -341,6 +386,13 @@ impl Report<'_> {
                 .map(|(_, a)| *a)
                 .collect();
             let allowance = (!crossed.is_empty()).then(|| crossed.iter().fold(0u64, |s, a| s.saturating_add(*a)));
+            let jumped = jumps.get(&key).copied().unwrap_or(0);
+            if jumped > 0 && !(self.across_hosts && allowance.is_some()) {
+                failures.push(format!(
+                    "actor {a} incarnation {i}: a learner jumped {jumped} time(s) over records a learner before it took{}",
+                    if self.across_hosts { ", on a stream that crossed no learner restart" } else { "" }
+                ));
+            }
             let s = sent.get(&key).copied();
             let r = received.get(&key).map(Vec::as_slice).unwrap_or(&[]);
             let verdict = account(s, r, allowance);
@@ -366,6 +418,7 @@ impl Report<'_> {
                 "sent": s.map(|s| s.steps), "sent_exact": s.map(|s| s.exact),
                 "received": total, "learner_processes": r.len(),
                 "learner_restarts_crossed": crossed.len(),
+                "jumps": jumped,
                 "died_allowance": allowance,
                 "verdict": format!("{verdict:?}"),
                 "lost": verdict.lost(),
@@ -378,6 +431,31 @@ impl Report<'_> {
              learners (the documented loss of a learner restart): {died} records over {} learner restart(s).\n",
             learner_restarts.len()
         );
+        // Across hosts: what each bridge moved (its `stats/bridge.json`, written by the
+        // last bridge process of the host).
+        let bridges: BTreeMap<&str, Value> = if self.across_hosts {
+            [(Host::Learner, self.learner_dir), (Host::Actors, self.actor_dir)]
+                .into_iter()
+                .filter_map(|(h, d)| {
+                    let text = std::fs::read_to_string(d.join("stats/bridge.json")).ok()?;
+                    Some((h.label(), serde_json::from_str(&text).ok()?))
+                })
+                .collect()
+        } else {
+            BTreeMap::new()
+        };
+        for (host, b) in &bridges {
+            let n = |k: &str| b[k].as_u64().map_or("?".into(), |v| v.to_string());
+            md += &format!(
+                "\nThe {host}'s last bridge: {} step records, {} episode reports, {} weights, {} hosts gone, {} \
+                 refused.\n",
+                n("step_records"),
+                n("episode_reports"),
+                n("weights"),
+                n("hosts_gone"),
+                n("refused")
+            );
+        }
         let passed = failures.is_empty();
         md += &if passed {
             "\n**Soak passed.**".to_string()
@@ -390,11 +468,18 @@ impl Report<'_> {
             "actors": self.actors,
             "minutes": self.minutes,
             "mean_kill_interval_secs": self.mean,
+            "across_hosts": self.across_hosts,
+            "link_cut_secs": self.across_hosts.then_some(self.link_cut_secs),
             "run_dir": self.run_dir.display().to_string(),
             "training_started_s": self.training_started,
             "stopped_s": self.stopped_at,
             "duration_s": self.end,
-            "launcher_exit": self.exit.to_string(),
+            // One host: the launcher's exit; across hosts: each host's.
+            "launcher_exit": if self.across_hosts {
+                json!(self.exits.iter().map(|(h, e)| (h.label(), e.to_string())).collect::<BTreeMap<_, _>>())
+            } else {
+                json!(self.exits.first().map(|(_, e)| e.to_string()))
+            },
             "schedule": self.schedule.iter().map(|k| json!({"at_s": k.at_secs, "victim": k.victim.process()})).collect::<Vec<_>>(),
             "kills": kills_json,
             "skipped": self.skipped.iter().map(|k| json!({"at_s": k.at_secs, "victim": k.victim.process()})).collect::<Vec<_>>(),
@@ -409,6 +494,7 @@ impl Report<'_> {
                 "learner_status": final_status,
             },
             "streams": streams_json,
+            "bridges": bridges,
             "lost_on_learner_side": lost,
             "died_with_killed_learners": died,
             "refill_steps_per_learner_restart": warmup,

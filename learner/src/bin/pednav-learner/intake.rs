@@ -11,7 +11,7 @@ use std::time::{Duration, Instant};
 
 use pednav_runtime::messages::{AckTable, Heartbeat, ProcessKind, StepHeader, StreamAck};
 use pednav_runtime::reliable::{ReceiveCursor, Verdict};
-use pednav_runtime::stats::StreamTally;
+use pednav_runtime::stats::{JUMPS_KEPT, StreamTally};
 
 /// How often a learner asks an actor again for records it misses (after a restart,
 /// the first out-of-order record asks at once).
@@ -32,6 +32,8 @@ struct Tally {
     out_of_order: u64,
     duplicates: u64,
     resumed: u64,
+    /// The ranges jumped over, `[from, to)` (the first [`JUMPS_KEPT`]).
+    jumped: Vec<[u64; 2]>,
 }
 
 impl Tally {
@@ -44,6 +46,7 @@ impl Tally {
             out_of_order: 0,
             duplicates: 0,
             resumed: 0,
+            jumped: Vec::new(),
         }
     }
 }
@@ -85,6 +88,9 @@ impl StepIntake {
             Verdict::Accept => Admit::Take,
             Verdict::Resume { skipped } => {
                 tally.resumed += 1;
+                if tally.jumped.len() < JUMPS_KEPT {
+                    tally.jumped.push([h.seq - skipped, h.seq]);
+                }
                 tracing::info!(
                     actor = h.actor,
                     incarnation = h.incarnation,
@@ -181,6 +187,7 @@ impl StepIntake {
                 out_of_order: t.out_of_order,
                 duplicates: t.duplicates,
                 resumed: t.resumed,
+                jumped: t.jumped.clone(),
             })
             .collect()
     }
@@ -226,6 +233,7 @@ mod tests {
         assert_eq!(intake.admit(&record(0, 1, 4, 4), &[], t0), Admit::Take);
         // The sender's base moved past 5 … 7: a learner before this one took them.
         assert_eq!(intake.admit(&record(0, 1, 8, 8), &[], t0), Admit::TakeAfterJump);
-        assert_eq!(intake.tallies()[0].resumed, 1);
+        let t = &intake.tallies()[0];
+        assert_eq!((t.resumed, t.jumped.as_slice(), t.records), (1, &[[5, 8]][..], 2));
     }
 }
