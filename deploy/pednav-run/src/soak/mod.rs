@@ -482,15 +482,13 @@ pub fn run(args: Soak) -> Result<()> {
         exits.push((h.host, h.stop(now())?));
     }
     exits.reverse();
+    // The restarts each launcher recorded after the last poll.
     for h in hosts {
         let _ = h.reader.join();
+        take_restarts(&RunDir::new(&h.dir), h.host, across_hosts, started_unix, &log);
     }
     let end = now();
     obs.poll(end);
-    for h in [Host::Learner, Host::Actors].into_iter().filter(|h| across_hosts || *h == Host::Learner) {
-        let d = if h == Host::Learner { &learner_dir } else { &actor_dir };
-        take_restarts(&RunDir::new(d), h, across_hosts, started_unix, &log);
-    }
     let log = std::mem::take(&mut *log.lock().unwrap());
 
     let report = Report {
