@@ -4,7 +4,8 @@
 //!
 //! `cargo bench -p pednav-learner --bench dsac_update [-- --quick] [-- --only a,c,act] [-- --json FILE] [-- --device cuda] [-- --state-aux W]`
 //! (`--only` takes the update keys a–d, `d_twin` and `d_recipe` — (d) with twin critics,
-//! and with the temporal contrastive loss too, ours alone — and `act` for the actor's
+//! and with the temporal contrastive loss too, ours alone —, `d_recipe_bf16` (the recipe
+//! with bf16 convolutions, where the CPU has AVX-512 BF16) and `act` for the actor's
 //! policy step;
 //! `--state-aux W` turns on the state-prediction auxiliary loss with weight W, to
 //! measure its cost against a run without it)
@@ -29,7 +30,7 @@ use std::time::Instant;
 
 use pednav_learner::{Dsac, DsacConfig, DualReplay, FrameKind, ReplayConfig, fill_replay};
 use pednav_nets::ops::Isa;
-use pednav_nets::{EncoderKind, NetsConfig, PolicyStream, init_cpu_runtime};
+use pednav_nets::{ConvPrecision, EncoderKind, NetsConfig, PolicyStream, init_cpu_runtime};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
@@ -101,7 +102,24 @@ fn cases() -> Vec<Case> {
             key: "d_recipe",
             what: "(d) with twin critics + temporal contrast (the pixel recipe)",
             batch: 32,
-            nets: NetsConfig { history: 8, image_size: 42, shared_encoder: true, ..base },
+            nets: NetsConfig { history: 8, image_size: 42, shared_encoder: true, ..base.clone() },
+            twin: true,
+            contrast: 1.0,
+            pytorch_ms: None,
+        },
+        // The recipe with mixed-precision convolutions (`nets.conv_precision = "bf16"`;
+        // skipped on CPUs without AVX-512 BF16).
+        Case {
+            key: "d_recipe_bf16",
+            what: "(d_recipe) with bf16 convolutions",
+            batch: 32,
+            nets: NetsConfig {
+                history: 8,
+                image_size: 42,
+                shared_encoder: true,
+                conv_precision: ConvPrecision::Bf16,
+                ..base
+            },
             twin: true,
             contrast: 1.0,
             pytorch_ms: None,
@@ -196,6 +214,10 @@ fn main() {
     let mut rng = ChaCha8Rng::seed_from_u64(0);
     for case in cases() {
         if only.as_ref().is_some_and(|o| !o.iter().any(|k| k == case.key)) {
+            continue;
+        }
+        if let Err(e) = case.nets.validate() {
+            println!("| ({}) {} | skipped: {e} | | | | |", case.key, case.what);
             continue;
         }
         // One critic where the case compares with the PyTorch reference (`dsac_ref.py`

@@ -346,7 +346,7 @@ fn read_verified(dir: &Path, meta: &CheckpointMeta, file: &str, dev: &Device) ->
 /// `state.json` and those files ([`acting_files`]).
 pub fn load_acting(dir: &Path, nets: &DsacNets) -> Result<CheckpointMeta> {
     let meta = read_meta(dir)?;
-    if meta.nets != nets.cfg {
+    if !meta.nets.same_architecture(&nets.cfg) {
         return Err(ck_err(
             dir,
             format!("it was written for networks {:?}, these networks are {:?}", meta.nets, nets.cfg),
@@ -424,7 +424,7 @@ pub fn agent_files(nets: &DsacNets) -> Vec<String> {
 /// any error `dsac` is unchanged.
 pub fn load_checkpoint(dir: &Path, dsac: &mut Dsac) -> Result<CheckpointMeta> {
     let meta = read_meta(dir)?;
-    if meta.nets != dsac.nets.cfg {
+    if !meta.nets.same_architecture(&dsac.nets.cfg) {
         return Err(ck_err(
             dir,
             format!("it was written for networks {:?}, the learner is configured with {:?}", meta.nets, dsac.nets.cfg),

@@ -20,6 +20,8 @@ pub enum EncoderKind {
     Mlp,
 }
 
+pub use crate::ops::conv::ConvPrecision;
+
 /// Architecture of the policy, fraction-proposal and quantile networks.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
@@ -46,6 +48,9 @@ pub struct NetsConfig {
     /// own encoder. `true`: one encoder, trained by the critic loss; the policy and
     /// fraction heads use its features detached (≈ 3× less encoder compute).
     pub shared_encoder: bool,
+    /// Arithmetic of the encoders' convolutions: `f32` (default) or `bf16` (mixed
+    /// precision on CPUs with AVX-512 BF16; beyond the paper, see docs/performance.md).
+    pub conv_precision: ConvPrecision,
 }
 
 impl Default for NetsConfig {
@@ -60,11 +65,20 @@ impl Default for NetsConfig {
             quantiles: 32,
             quantile_grid: 32,
             shared_encoder: false,
+            conv_precision: ConvPrecision::F32,
         }
     }
 }
 
 impl NetsConfig {
+    /// Whether networks built from `self` and `other` have the same parameters (every
+    /// field but `conv_precision`, which changes the arithmetic, not the weights): a
+    /// checkpoint trained with bf16 convolutions loads into f32 networks and back.
+    pub fn same_architecture(&self, other: &NetsConfig) -> bool {
+        let normalised = |c: &NetsConfig| NetsConfig { conv_precision: ConvPrecision::F32, ..c.clone() };
+        normalised(self) == normalised(other)
+    }
+
     /// Reject settings no network can be built from, naming the field.
     pub fn validate(&self) -> Result<()> {
         if self.encoder != EncoderKind::Mlp {
@@ -82,6 +96,19 @@ impl NetsConfig {
         } else if self.state_dim == 0 {
             return Err(config_error("state_dim", self.state_dim, "must be positive"));
         }
+        let needs_bf16 = self.encoder != EncoderKind::Mlp && self.conv_precision == ConvPrecision::Bf16;
+        if needs_bf16 && !crate::ops::conv::bf16_available() {
+            return Err(config_error(
+                "conv_precision",
+                self.conv_precision.name(),
+                format!(
+                    "needs AVX-512 BF16 on the `avx512` path (this CPU: AVX-512 BF16 {}, path `{}`); \
+                     set it to \"f32\"",
+                    if crate::ops::conv::cpu_has_bf16() { "present" } else { "absent" },
+                    crate::ops::Isa::active()
+                ),
+            ));
+        }
         // Upper bounds far above any published setting (256 / 8 / 32 / 32): a larger
         // value is a typo, and `pednav-run check` builds the networks to estimate memory.
         for (field, value, min, max) in [
@@ -97,5 +124,31 @@ impl NetsConfig {
             }
         }
         Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The precision is not part of the architecture (checkpoints load across it),
+    /// every other field is; asking for bf16 where it cannot run names the field.
+    #[test]
+    fn precision_is_not_architecture_and_bf16_is_refused_where_it_cannot_run() {
+        let f32_cfg = NetsConfig::default();
+        let bf16_cfg = NetsConfig { conv_precision: ConvPrecision::Bf16, ..f32_cfg.clone() };
+        assert!(f32_cfg.same_architecture(&bf16_cfg));
+        assert!(!f32_cfg.same_architecture(&NetsConfig { history: 8, ..bf16_cfg.clone() }));
+        match bf16_cfg.validate() {
+            Ok(()) => assert!(crate::ops::conv::bf16_available()),
+            Err(e) => {
+                assert!(!crate::ops::conv::bf16_available());
+                let msg = e.to_string();
+                assert!(msg.contains("conv_precision") && msg.contains("f32"), "{msg}");
+            }
+        }
+        // The MLP encoder has no convolution: any precision is fine.
+        let mlp = NetsConfig { encoder: EncoderKind::Mlp, ..bf16_cfg };
+        assert!(mlp.validate().is_ok());
     }
 }

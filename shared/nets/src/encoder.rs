@@ -186,12 +186,13 @@ impl TcnEncoder {
         let mut frames = Vec::new();
         let mut c_in = 1;
         for (i, (&(kt, dt), &(k, s, p, c))) in plan.iter().zip(&SPATIAL_STAGES).enumerate() {
-            let spec = ConvSpec::spatiotemporal(kt, dt, k, s, p);
+            let spec = ConvSpec::spatiotemporal(kt, dt, k, s, p).with_precision(cfg.conv_precision);
             frames.push(Conv::new(store, &format!("enc.frames{i}"), spec, c_in, c, rng)?);
             c_in = c;
         }
         let (kt, _) = plan[DILATIONS.len()];
-        frames.push(Conv::new(store, "enc.frames3", ConvSpec::temporal(kt, 1), c_in, c_in, rng)?);
+        let spec = ConvSpec::temporal(kt, 1).with_precision(cfg.conv_precision);
+        frames.push(Conv::new(store, "enc.frames3", spec, c_in, c_in, rng)?);
         let hist_plan = temporal_plan(cfg.history - 1);
         let branch = |store: &mut ParamStore, name: &str, c0: usize, rng: &mut ChaCha8Rng| -> Result<Vec<Conv>> {
             let mut c_in = c0;
@@ -200,7 +201,7 @@ impl TcnEncoder {
                 let layer = Conv::new(
                     store,
                     &format!("enc.{name}{i}"),
-                    ConvSpec::temporal(kt, dt),
+                    ConvSpec::temporal(kt, dt).with_precision(cfg.conv_precision),
                     c_in,
                     cfg.history_features,
                     rng,
@@ -260,7 +261,8 @@ impl FrameStackEncoder {
         let mut convs = Vec::new();
         let mut c_in = cfg.history;
         for (i, &(k, s, p, c)) in SPATIAL_STAGES.iter().enumerate() {
-            convs.push(Conv::new(store, &format!("enc.conv{i}"), ConvSpec::spatial(k, s, p), c_in, c, rng)?);
+            let spec = ConvSpec::spatial(k, s, p).with_precision(cfg.conv_precision);
+            convs.push(Conv::new(store, &format!("enc.conv{i}"), spec, c_in, c, rng)?);
             c_in = c;
         }
         Ok(FrameStackEncoder { convs, out_dim: feature_dim(cfg) })

@@ -20,7 +20,7 @@ pub mod optim;
 pub mod params;
 pub mod stream;
 
-pub use config::{ACTION_DIM, EncoderKind, NetsConfig};
+pub use config::{ACTION_DIM, ConvPrecision, EncoderKind, NetsConfig};
 pub use cpu::init_cpu_runtime;
 pub use device::{CUDA_BUILT, DeviceSpec};
 pub use encoder::{Encoder, Obs, Transitions, temporal_plan};

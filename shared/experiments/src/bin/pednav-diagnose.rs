@@ -86,7 +86,7 @@ fn main() -> Result<()> {
     let agent = pednav_learner::load_agent(&ckpt, &device).with_context(|| {
         format!("loading the online networks of {} (pednav-diagnose also reads the critic: a folder with only the acting files is not enough)", ckpt.display())
     })?;
-    if agent.meta.nets != cfg.nets {
+    if !agent.meta.nets.same_architecture(&cfg.nets) {
         bail!("{}: the checkpoint's networks differ from {}", ckpt.display(), cfg_path.display());
     }
     let untrained = DsacNets::new(&cfg.nets, &device, pednav_config::rng::untrained_reference_seed(cfg.seed))?;

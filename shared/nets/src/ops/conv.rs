@@ -33,11 +33,18 @@
 //! too (gy·Wᵀ added straight into a padded input gradient); the rest, and the
 //! baseline instruction set, use gemm and col2im.
 //!
+//! With `ConvSpec::bf16` (`nets.conv_precision = "bf16"`) and a CPU with AVX-512
+//! BF16 on the `avx512` path, the direct kernels' layers multiply in bf16 and sum in
+//! f32 ([`bf16`]: forward and weight gradient for C_out ∈ {16, 32, 64} with even
+//! k_w·C_in, the input gradient where the f32 direct one applies); every other layer
+//! and path stays f32.
+//!
 //! Layout: this file holds the layer's spec ([`ConvSpec`]), the forward and backward
 //! drivers and the candle op; [`geometry`] the sizes of a call and im2col/col2im,
-//! [`gemm_call`] the gemm calls, [`pool`] the per-thread scratch buffers and
-//! [`direct`] the direct kernels.
+//! [`gemm_call`] the gemm calls, [`pool`] the per-thread scratch buffers,
+//! [`direct`] the direct kernels and [`bf16`] their mixed-precision variants.
 
+mod bf16;
 mod direct;
 mod gemm_call;
 mod geometry;
@@ -46,12 +53,40 @@ mod pool;
 use candle_core::{CpuStorage, CustomOp3, Layout, Shape, Storage, Tensor};
 use gemm::Parallelism;
 use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
 
 use super::Isa;
+pub use bf16::{bf16_available, cpu_has_bf16};
 use geometry::{Geometry, col2im_add, im2col};
 use pool::Pooled;
 
 pub(super) use gemm_call::{matmul, matmul_new};
+
+/// Arithmetic of the encoders' convolutions.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum ConvPrecision {
+    /// f32 throughout (the paper's networks, and the default).
+    #[default]
+    F32,
+    /// Mixed precision: the encoders' direct convolution kernels (forward, input and
+    /// weight gradients) multiply bf16-rounded activations, weights and output
+    /// gradients and sum in f32 (AVX-512 BF16: twice the multiply-adds per
+    /// instruction); parameters, gradients as stored, the optimiser and every other
+    /// layer stay f32. Needs a CPU with AVX-512 BF16 on the `avx512` path (Zen 4 and
+    /// later, Xeons since Cooper Lake).
+    Bf16,
+}
+
+impl ConvPrecision {
+    /// The name the config file uses.
+    pub fn name(self) -> &'static str {
+        match self {
+            ConvPrecision::F32 => "f32",
+            ConvPrecision::Bf16 => "bf16",
+        }
+    }
+}
 
 /// Geometry of one convolution layer (everything except the channel counts and the
 /// input size, which come from the tensors).
@@ -68,12 +103,23 @@ pub struct ConvSpec {
     pub dilation_t: usize,
     /// Apply ReLU to the output (fused into the kernel and its backward).
     pub relu: bool,
+    /// Multiply in bf16 (products of bf16-rounded inputs and weights, summed in f32)
+    /// where this module's AVX-512 BF16 kernels take the layer; f32 elsewhere
+    /// ([`ConvPrecision::Bf16`] says which parts).
+    pub bf16: bool,
 }
 
 impl ConvSpec {
     /// A 2D convolution (temporal kernel 1).
     pub fn spatial(k: usize, stride: usize, padding: usize) -> ConvSpec {
-        ConvSpec { kernel: [1, k, k], stride: [stride, stride], padding: [padding, padding], dilation_t: 1, relu: true }
+        ConvSpec {
+            kernel: [1, k, k],
+            stride: [stride, stride],
+            padding: [padding, padding],
+            dilation_t: 1,
+            relu: true,
+            bf16: false,
+        }
     }
 
     /// A 3D convolution with temporal kernel `kt` and dilation `dt`.
@@ -84,17 +130,24 @@ impl ConvSpec {
             padding: [padding, padding],
             dilation_t: dt,
             relu: true,
+            bf16: false,
         }
     }
 
     /// A purely temporal convolution (spatial kernel 1×1).
     pub fn temporal(kt: usize, dt: usize) -> ConvSpec {
-        ConvSpec { kernel: [kt, 1, 1], stride: [1, 1], padding: [0, 0], dilation_t: dt, relu: true }
+        ConvSpec { kernel: [kt, 1, 1], stride: [1, 1], padding: [0, 0], dilation_t: dt, relu: true, bf16: false }
     }
 
     /// The same convolution without the ReLU.
     pub fn linear(mut self) -> ConvSpec {
         self.relu = false;
+        self
+    }
+
+    /// The same convolution multiplying in `precision` (see [`ConvSpec::bf16`]).
+    pub fn with_precision(mut self, precision: ConvPrecision) -> ConvSpec {
+        self.bf16 = precision == ConvPrecision::Bf16;
         self
     }
 
@@ -137,18 +190,32 @@ fn forward(g: &Geometry, x: &[f32], w: &[f32], bias: &[f32]) -> Vec<f32> {
     let pointwise = g.spatially_pointwise();
     let direct = g.direct();
     let isa = Isa::active();
+    // Mixed precision where the layer asks for it and the bf16 kernel takes it: the
+    // weights packed once per call, each sample's padded input converted as it is padded.
+    let half = direct && bf16::forward_supported(g, isa);
+    let packed = if half { bf16::pack_forward_weights(g, w) } else { Vec::new() };
+    let scratch_len = if half { g.padded_len().div_ceil(2) } else { g.input_scratch_len(direct) };
     if direct && matches!(par, Parallelism::Rayon(_)) {
         // Fewer samples than threads (actor inference): split each sample's output
         // positions over the pool instead, in whole blocks.
-        let mut xp = Pooled::new(g.padded_len());
+        let mut xp = Pooled::new(scratch_len);
         let positions = g.to * g.ps();
         let chunk = positions.div_ceil(rayon::current_num_threads()).div_ceil(8).max(1) * 8;
         for (y, xb) in out.chunks_mut(g.out_len().max(1)).zip(x.chunks(g.in_len().max(1))) {
-            direct::pad_frames(g, xb, &mut xp);
-            y.par_chunks_mut(chunk * co).enumerate().for_each(|(i, yc)| {
-                let q0 = i * chunk;
-                direct::forward(g, isa, &xp, w, bias, yc, q0..q0 + yc.len() / co)
+            let chunks = y.par_chunks_mut(chunk * co).enumerate().map(|(i, yc)| {
+                let n = yc.len() / co;
+                (yc, i * chunk..i * chunk + n)
             });
+            if half {
+                let xp16 = xp.as_bf16_mut();
+                bf16::pad_frames(g, xb, xp16);
+                let xp16: &[u16] = xp16;
+                chunks.for_each(|(yc, q)| bf16::forward(g, isa, xp16, &packed, bias, yc, q));
+            } else {
+                direct::pad_frames(g, xb, &mut xp);
+                let xp32: &[f32] = &xp;
+                chunks.for_each(|(yc, q)| direct::forward(g, isa, xp32, w, bias, yc, q));
+            }
         }
         return out;
     }
@@ -156,8 +223,14 @@ fn forward(g: &Geometry, x: &[f32], w: &[f32], bias: &[f32]) -> Vec<f32> {
         .zip(x.par_chunks(g.in_len().max(1)))
         .with_min_len(min_len(g.b))
         .for_each_init(
-            || Pooled::new(g.input_scratch_len(direct)),
+            || Pooled::new(scratch_len),
             |scratch, (y, xb)| {
+                if half {
+                    let xp = scratch.as_bf16_mut();
+                    bf16::pad_frames(g, xb, xp);
+                    bf16::forward(g, isa, xp, &packed, bias, y, 0..g.to * g.ps());
+                    return;
+                }
                 if direct {
                     direct::pad_frames(g, xb, scratch);
                     direct::forward(g, isa, scratch, w, bias, y, 0..g.to * g.ps());
@@ -209,7 +282,14 @@ fn backward(
     // into a padded input gradient where the instruction set has one; otherwise
     // gemm writes the column matrix and col2im scatters it.
     let direct_dx = need_dx && direct::input_grad_supported(g, isa);
-    let wt = if direct_dx { direct::transpose_weights(g, w) } else { Vec::new() };
+    // In mixed precision (where the bf16 kernel takes the layer) it multiplies the
+    // bf16-rounded output gradient by bf16 weights.
+    let half_dx = direct_dx && bf16::input_grad_supported(g, isa);
+    let wt = if direct_dx && !half_dx { direct::transpose_weights(g, w) } else { Vec::new() };
+    let wt_half = if half_dx { bf16::pack_input_grad_weights(g, w) } else { Vec::new() };
+    // The weight gradient in mixed precision too: pairs of neighbouring positions of
+    // an output row (a layer with rows of one position would only pad every pair).
+    let half_dw = direct && g.wo > 1 && bf16::forward_supported(g, isa);
     let dx_scratch_len = if direct_dx {
         g.padded_len()
     } else if need_dx && !pointwise {
@@ -227,6 +307,9 @@ fn backward(
         cols: Pooled,
         dcols: Pooled,
         gy: Pooled,
+        gy_half: Pooled,
+        x_pairs: Pooled,
+        gy_pairs: Pooled,
     }
     let new_scratch = || Scratch {
         dw: vec![0f32; kt * ks * co],
@@ -234,6 +317,9 @@ fn backward(
         cols: Pooled::new(g.input_scratch_len(direct)),
         dcols: Pooled::new(dx_scratch_len),
         gy: Pooled::new(g.out_len()),
+        gy_half: Pooled::new(if half_dx { g.out_len().div_ceil(2) } else { 0 }),
+        x_pairs: Pooled::new(if half_dw { bf16::paired_input_len(g).div_ceil(2) } else { 0 }),
+        gy_pairs: Pooled::new(if half_dw { bf16::paired_gradient_len(g).div_ceil(2) } else { 0 }),
     };
     let per_sample = |mut s: Scratch, xb: &[f32], yb: &[f32], dyb: &[f32], mut dxb: Option<&mut [f32]>| {
         // Gradient at the pre-activation: the ReLU mask comes from the saved output.
@@ -247,7 +333,15 @@ fn backward(
         }
         if direct {
             direct::pad_frames(g, xb, &mut s.cols);
-            direct::weight_grad(g, isa, &s.cols, &s.gy, &mut s.dw);
+            if half_dw {
+                let x_pairs = s.x_pairs.as_bf16_mut();
+                bf16::pair_positions(g, &s.cols, x_pairs);
+                let gy_pairs = s.gy_pairs.as_bf16_mut();
+                bf16::pair_gradients(g, &s.gy, gy_pairs);
+                bf16::weight_grad(g, isa, x_pairs, gy_pairs, &mut s.dw);
+            } else {
+                direct::weight_grad(g, isa, &s.cols, &s.gy, &mut s.dw);
+            }
         } else {
             let lhs: &[f32] = if pointwise {
                 xb
@@ -263,7 +357,13 @@ fn backward(
         }
         if let (Some(dxb), true) = (dxb.as_deref_mut(), direct_dx) {
             s.dcols.fill(0.0);
-            direct::input_grad(g, isa, &wt, &s.gy, &mut s.dcols);
+            if half_dx {
+                let gy_half = s.gy_half.as_bf16_mut();
+                bf16::convert(&s.gy, gy_half);
+                bf16::input_grad(g, isa, &wt_half, gy_half, &mut s.dcols);
+            } else {
+                direct::input_grad(g, isa, &wt, &s.gy, &mut s.dcols);
+            }
             direct::unpad_frames(g, &s.dcols, dxb);
         } else if let Some(dxb) = dxb {
             // dtap (rows×ks) += gy (rows×co) · W_dtᵀ (co×ks), into the column matrix

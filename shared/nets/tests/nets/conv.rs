@@ -31,6 +31,7 @@ fn cases() -> Vec<Case> {
         padding,
         dilation_t,
         relu: false,
+        bf16: false,
     };
     vec![
         Case { name: "3d k2x4x4 s2 p1 d1", input: [2, 5, 9, 9, 2], c_out: 3, spec: s([2, 4, 4], [2, 2], [1, 1], 1) },
@@ -272,6 +273,66 @@ fn outputs_and_gradients_equal_candles_conv2d() {
             let g2 = (conv_reference(&xc, &w, &b, spec).unwrap() * &r).unwrap().sum_all().unwrap().backward().unwrap();
             for (what, var) in [("dw (constant input)", &w), ("db (constant input)", &b)] {
                 close(g1.get(var).unwrap(), g2.get(var).unwrap(), what);
+            }
+        }
+    }
+}
+
+/// Mixed precision (`ConvSpec::bf16`) on the 3D-TCN's layer shapes at 42² (and one
+/// sample, the inference path), against the f32 op: the output (ReLU on) within bf16
+/// rounding (relative L2 error ≤ 1 %); without the ReLU (whose mask would differ
+/// wherever rounding moves an output across zero) the input and weight gradients
+/// within bf16 rounding and the bias gradient, which stays f32, equal up to
+/// summation order; a layer the bf16 kernels do not take gives the f32 result.
+#[test]
+fn bf16_convolutions_stay_within_rounding_of_f32() {
+    if !pednav_nets::ops::conv::bf16_available() {
+        eprintln!("skipped: no AVX-512 BF16 on this CPU's active path");
+        return;
+    }
+    let rel_l2 = |a: &[f32], b: &[f32]| -> f64 {
+        let num: f64 = a.iter().zip(b).map(|(u, v)| (*u as f64 - *v as f64).powi(2)).sum();
+        let den: f64 = b.iter().map(|v| (*v as f64).powi(2)).sum();
+        (num / den.max(1e-30)).sqrt()
+    };
+    let mut rng = ChaCha8Rng::seed_from_u64(17);
+    // The parts the bf16 kernels compute for each layer (layer 0's input gradient
+    // goes through gemm: its rows of k_w·C_in = 4 inputs are narrower than a tile).
+    let all: &[&str] = &["output", "dx", "dW"];
+    for (name, input, c_out, spec, half_parts) in [
+        ("layer 0", [3, 9, 42, 42, 1], 16, ConvSpec::spatiotemporal(2, 1, 4, 2, 1), &["output", "dW"][..]),
+        ("layer 1", [3, 8, 21, 21, 16], 32, ConvSpec::spatiotemporal(2, 2, 4, 2, 1), all),
+        ("layer 2", [3, 6, 10, 10, 32], 64, ConvSpec::spatiotemporal(2, 4, 3, 3, 0), all),
+        ("one sample", [1, 8, 21, 21, 16], 32, ConvSpec::spatiotemporal(2, 2, 4, 2, 1), all),
+        ("actions (C_in 3, C_out 8: f32)", [3, 7, 1, 1, 3], 8, ConvSpec::temporal(2, 1), &[][..]),
+    ] {
+        let ci = input[4];
+        let x = Var::from_tensor(&random(&mut rng, &input)).unwrap();
+        let w = Var::from_tensor(&(random(&mut rng, &[spec.weight_rows(ci), c_out]) * 0.2).unwrap()).unwrap();
+        let b = Var::from_tensor(&random(&mut rng, &[c_out])).unwrap();
+        let linear = spec.linear();
+        let r = random(&mut rng, conv(&x, &w, &b, linear).unwrap().dims());
+        let run = |s: ConvSpec| {
+            let y = conv(&x, &w, &b, s).unwrap();
+            let grads = (&y * &r).unwrap().sum_all().unwrap().backward().unwrap();
+            let g = |v: &Var| to_vec(grads.get(v).unwrap());
+            [g(&x), g(&w), g(&b)]
+        };
+        let half = |s: ConvSpec| ConvSpec { bf16: true, ..s };
+        let relu = ConvSpec { relu: true, ..spec };
+        let (y, y_half) = (to_vec(&conv(&x, &w, &b, relu).unwrap()), to_vec(&conv(&x, &w, &b, half(relu)).unwrap()));
+        let (exact, grads) = (run(linear), run(half(linear)));
+        for (what, a, e) in [("output", &y_half, &y), ("dx", &grads[0], &exact[0]), ("dW", &grads[1], &exact[1])]
+            .into_iter()
+            .chain([("db", &grads[2], &exact[2])])
+        {
+            let err = rel_l2(a, e);
+            assert!(a.iter().all(|v| v.is_finite()), "{name} {what}: not finite");
+            if half_parts.contains(&what) {
+                // Within rounding, and not zero: the bf16 kernel ran.
+                assert!(err <= 1e-2 && err > 0.0, "{name} {what}: relative L2 error {err:.2e} (bf16: (0, 1e-2])");
+            } else {
+                assert!(err <= 1e-5, "{name} {what}: relative L2 error {err:.2e} (f32: ≤ 1e-5)");
             }
         }
     }

@@ -51,6 +51,12 @@ pub(super) const LANES: [usize; 4] = [8, 16, 32, 64];
 /// from the scratch pool with stale contents): the border rows and the row ends
 /// with zeros, the rest with the input.
 pub(super) fn pad_frames(g: &Geometry, x: &[f32], xp: &mut [f32]) {
+    pad_frames_with(g, x, xp, 0.0, |src, dst| dst.copy_from_slice(src));
+}
+
+/// [`pad_frames`] into any element type: zero borders of `zero`, each input row
+/// written by `row` (a copy, or a conversion as the bf16 kernels' padding does).
+pub(super) fn pad_frames_with<T: Copy>(g: &Geometry, x: &[f32], xp: &mut [T], zero: T, row: impl Fn(&[f32], &mut [T])) {
     let (hp, wp) = g.padded();
     let [ph, pw] = g.spec.padding;
     let ci = g.ci;
@@ -59,12 +65,12 @@ pub(super) fn pad_frames(g: &Geometry, x: &[f32], xp: &mut [f32]) {
         let plane = &mut xp[t * hp * row_len..(t + 1) * hp * row_len];
         let (top, rest) = plane.split_at_mut(ph * row_len);
         let (body, bottom) = rest.split_at_mut(g.h * row_len);
-        top.fill(0.0);
-        bottom.fill(0.0);
+        top.fill(zero);
+        bottom.fill(zero);
         for (dst, src) in body.chunks_exact_mut(row_len).zip(frame.chunks_exact(g.w * ci)) {
-            dst[..edge].fill(0.0);
-            dst[edge..edge + src.len()].copy_from_slice(src);
-            dst[edge + src.len()..].fill(0.0);
+            dst[..edge].fill(zero);
+            row(src, &mut dst[edge..edge + src.len()]);
+            dst[edge + src.len()..].fill(zero);
         }
     }
 }
@@ -211,7 +217,7 @@ pub(super) fn unpad_frames(g: &Geometry, xp: &[f32], x: &mut [f32]) {
 /// Offsets in the padded input of tap (0, 0, 0), channel 0, of output positions
 /// q0 .. q0 + N (one division pair per block, then stepping along the rows).
 #[inline(always)]
-fn input_offsets<const N: usize>(g: &Geometry, q0: usize) -> [usize; N] {
+pub(super) fn input_offsets<const N: usize>(g: &Geometry, q0: usize) -> [usize; N] {
     let mut offsets = [0; N];
     fill_input_offsets(g, q0, &mut offsets);
     offsets
@@ -241,7 +247,7 @@ fn fill_input_offsets(g: &Geometry, q0: usize, out: &mut [usize]) {
 /// Offset of tap (dt, dh, 0) relative to tap (0, 0, 0): its k_w·C_in inputs follow
 /// contiguously.
 #[inline(always)]
-fn tap_offset(g: &Geometry, dt: usize, dh: usize) -> usize {
+pub(super) fn tap_offset(g: &Geometry, dt: usize, dh: usize) -> usize {
     let (hp, wp) = g.padded();
     (dt * g.spec.dilation_t * hp + dh) * wp * g.ci
 }

@@ -14,8 +14,8 @@ thread_local! {
     static POOL: std::cell::RefCell<Vec<Vec<f32>>> = const { std::cell::RefCell::new(Vec::new()) };
 }
 
-/// Buffers a thread keeps for reuse.
-const POOL_SIZE: usize = 4;
+/// Buffers a thread keeps for reuse (a mixed-precision backward holds six at once).
+const POOL_SIZE: usize = 8;
 
 /// A scratch buffer of `len` floats with unspecified contents (every user writes
 /// what it reads), returned to its thread's pool on drop.
@@ -26,6 +26,10 @@ pub(super) struct Pooled {
 
 impl Pooled {
     pub(super) fn new(len: usize) -> Pooled {
+        if len == 0 {
+            // Nothing to hold: leave the pool's buffers to the scratch that needs them.
+            return Pooled { buf: Vec::new(), len: 0 };
+        }
         let mut buf = POOL.with(|p| {
             let mut p = p.borrow_mut();
             // The smallest buffer that is large enough, else the largest (grown).
@@ -42,6 +46,18 @@ impl Pooled {
             buf.resize(len, 0.0);
         }
         Pooled { buf, len }
+    }
+}
+
+impl Pooled {
+    /// The buffer's bytes as `2·len` bf16 values (bit patterns in `u16`), for the
+    /// mixed-precision kernels: `Pooled::new(n.div_ceil(2))` holds `n` of them.
+    pub(super) fn as_bf16_mut(&mut self) -> &mut [u16] {
+        let len = 2 * self.len;
+        // SAFETY: the view covers exactly the bytes of the `len` floats it is asked
+        // for, `u16` has no invalid bit patterns and an alignment that divides
+        // `f32`'s, and the mutable borrow of `self` keeps it the only view.
+        unsafe { std::slice::from_raw_parts_mut(self.buf.as_mut_ptr().cast::<u16>(), len) }
     }
 }
 
