@@ -96,12 +96,11 @@ pub(super) fn to_bf16(v: f32) -> u16 {
 pub(super) fn convert(src: &[f32], dst: &mut [u16]) {
     assert!(dst.len() >= src.len(), "bf16 destination too short");
     #[cfg(target_arch = "x86_64")]
-    if cpu_has_bf16() {
-        // SAFETY: the CPU has the features (checked); lengths checked above.
-        unsafe { vector::convert(src, dst) };
-        return;
-    }
-    for (d, &s) in dst.iter_mut().zip(src) {
+    // SAFETY: the CPU has the features (checked); lengths checked above.
+    let done = if cpu_has_bf16() { unsafe { vector::convert(src, dst) } } else { 0 };
+    #[cfg(not(target_arch = "x86_64"))]
+    let done = 0;
+    for (d, &s) in dst[done..].iter_mut().zip(&src[done..]) {
         *d = to_bf16(s);
     }
 }
@@ -214,13 +213,14 @@ pub(super) fn paired_gradient_len(g: &Geometry) -> usize {
 pub(super) fn pair_positions(g: &Geometry, xp: &[f32], out: &mut [u16]) {
     let (n, d) = (g.padded_len(), g.spec.stride[1] * g.ci);
     assert!(xp.len() >= n && out.len() >= 2 * n, "paired input: sizes");
+    // The vector kernel takes whole blocks of 16 whose partners are all inside; the
+    // rest (and every value on other CPUs) here.
     #[cfg(target_arch = "x86_64")]
-    if cpu_has_bf16() {
-        // SAFETY: the CPU has the features (checked); sizes checked above.
-        unsafe { vector::pair_shifted(&xp[..n], d, out) };
-        return;
-    }
-    for e in 0..n {
+    // SAFETY: the CPU has the features (checked); sizes checked above.
+    let done = if cpu_has_bf16() { unsafe { vector::pair_shifted(&xp[..n], d, out) } } else { 0 };
+    #[cfg(not(target_arch = "x86_64"))]
+    let done = 0;
+    for e in done..n {
         out[2 * e] = to_bf16(xp[e]);
         out[2 * e + 1] = if e + d < n { to_bf16(xp[e + d]) } else { 0 };
     }
@@ -307,8 +307,9 @@ mod vector {
         }
     }
 
+    /// `super::convert` of the whole blocks of 16 values; returns how many it converted.
     #[target_feature(enable = "avx512f,avx512bw,avx512bf16")]
-    pub(super) unsafe fn convert(src: &[f32], dst: &mut [u16]) {
+    pub(super) unsafe fn convert(src: &[f32], dst: &mut [u16]) -> usize {
         let whole = src.len() / 16 * 16;
         // SAFETY: 16 floats read and 16 values written per step, inside both slices.
         unsafe {
@@ -320,9 +321,7 @@ mod vector {
                     .write_unaligned(std::mem::transmute::<__m256bh, [u16; 16]>(v));
             }
         }
-        for (d, &s) in dst[whole..].iter_mut().zip(&src[whole..]) {
-            *d = super::to_bf16(s);
-        }
+        whole
     }
 
     /// 0, 16, 1, 17, …: interleaves the two halves of a 32-value vector.
@@ -368,10 +367,11 @@ mod vector {
         }
     }
 
+    /// The pairs of `super::pair_positions` for the whole blocks of 16 values whose
+    /// partners (e + d) all lie inside `xp`; returns how many values it paired.
     #[target_feature(enable = "avx512f,avx512bw,avx512bf16")]
-    pub(super) unsafe fn pair_shifted(xp: &[f32], d: usize, out: &mut [u16]) {
+    pub(super) unsafe fn pair_shifted(xp: &[f32], d: usize, out: &mut [u16]) -> usize {
         let n = xp.len();
-        // Whole blocks of 16 whose partners (e + d) are all inside; the rest scalar.
         let whole = if n >= d + 16 { (n - d) / 16 * 16 } else { 0 };
         // SAFETY: e + 16 ≤ whole ≤ n − d, so both loads are inside `xp`; `out` holds 2n.
         unsafe {
@@ -379,10 +379,7 @@ mod vector {
                 interleave16(xp.as_ptr().add(e), Some(xp.as_ptr().add(e + d)), out.as_mut_ptr().add(2 * e));
             }
         }
-        for e in whole..n {
-            out[2 * e] = super::to_bf16(xp[e]);
-            out[2 * e + 1] = if e + d < n { super::to_bf16(xp[e + d]) } else { 0 };
-        }
+        whole
     }
 
     /// Position pairs per chunk of the weight gradient (the chunk's paired gradient
