@@ -13,7 +13,9 @@
 //! naming what to fix. The same two hosts train over mutual TLS with the test
 //! certificates, and across two network namespaces the test makes (a routed link
 //! between two addresses, not loopback), where the link is cut for 15 s mid-run and
-//! comes back: the stream stays whole. Only watchdogs — no timing assertions.
+//! comes back: the stream stays whole. The bridge benchmark over mutual TLS (both
+//! directions loaded) keeps its link and loses nothing. Only watchdogs — no timing
+//! assertions.
 
 use std::path::Path;
 use std::process::{Child, Command, Stdio};
@@ -269,6 +271,64 @@ fn a_learner_host_and_an_actor_host_train_over_mutual_tls() {
     let (lb, ab) = (bridge_stats(&learner_dir).unwrap(), bridge_stats(&actor_dir).unwrap());
     assert!(lb["step_records"].as_u64().unwrap() > 0 && ab["weights"].as_u64().unwrap() >= 1, "{lb} {ab}");
     assert_eq!((lb["refused"].as_u64(), ab["refused"].as_u64()), (Some(0), Some(0)), "{lb} {ab}");
+    // The link stayed up until the actor host stopped: zenoh's TLS link drops under
+    // two-way traffic unless its reads and writes share a thread
+    // (`pednav_bridge::link::TLS_SAFE_RUNTIME`).
+    assert_eq!(lb["hosts_gone"].as_u64(), Some(1), "the actor host left the TLS link only when it stopped: {lb}");
+}
+
+/// The bridge benchmark over mutual TLS — step records one way as fast as the link
+/// takes them; acknowledgements, heartbeats, weights and tasks the other way — keeps
+/// its link up and loses nothing. zenoh 1.10's TLS link fails under exactly this load
+/// unless its reads and writes run on one thread, which `pednav-run` arranges for
+/// itself (`pednav_bridge::link::TLS_SAFE_RUNTIME`); without it links drop and come
+/// back over and over and the throughput phase never ends (docs/multi-host.md, *TLS*).
+#[test]
+fn the_bridge_benchmark_over_mutual_tls_keeps_its_link_and_loses_nothing() {
+    let dir = scratch_dir("multihost-tls-bench");
+    let (json, log) = (dir.join("bridge.json"), dir.join("bench.log"));
+    let tls_dir = workspace_root().join("shared/bridge/testdata/tls");
+    let args = [
+        "bench",
+        "bridge",
+        "--tls-dir",
+        tls_dir.to_str().unwrap(),
+        "--records",
+        "20000",
+        "--repeats",
+        "20",
+        "--drop-secs",
+        "0",
+        "--stall-secs",
+        "0",
+        "--json",
+        json.to_str().unwrap(),
+    ];
+    let mut bench = pednav_run(&args, &log);
+    // ≈ 40 s with the link up (the fault phase sends for 22 s); the watchdog bounds a
+    // link that keeps dropping.
+    let start = std::time::Instant::now();
+    let status = loop {
+        if let Some(status) = bench.0.try_wait().unwrap() {
+            break status;
+        }
+        let tail = || std::fs::read_to_string(&log).unwrap_or_default();
+        assert!(
+            start.elapsed() < Duration::from_secs(240),
+            "the TLS bridge bench did not finish in 240 s:\n{}",
+            tail()
+        );
+        std::thread::sleep(Duration::from_millis(200));
+    };
+    let text = std::fs::read_to_string(&log).unwrap_or_default();
+    assert!(status.success(), "bench bridge failed ({status}):\n{text}");
+    assert!(text.contains("ZENOH_RUNTIME"), "the launcher says which zenoh runtime layout it set:\n{text}");
+    let figures: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
+    assert_eq!(figures["transport"], "tls", "{figures}");
+    for key in ["lost", "duplicated", "corrupted", "transport_closed"] {
+        assert_eq!(figures[key].as_u64(), Some(0), "{key}: {figures}");
+    }
+    assert!(figures["fault_records_sent"].as_u64().unwrap() > 0, "{figures}");
 }
 
 /// Two network namespaces made for one test and joined by a veth pair: `learner`

@@ -91,6 +91,13 @@ fn self_exe() -> Result<PathBuf> {
     std::env::current_exe().context("locating pednav-run")
 }
 
+impl Bench {
+    /// Whether the benchmark runs a link over mutual TLS.
+    pub fn uses_tls(&self) -> bool {
+        matches!(self, Bench::Bridge(b) if b.uses_tls())
+    }
+}
+
 pub fn run(b: Bench) -> Result<()> {
     match b {
         Bench::Stream { records, frame } => stream(records, frame),

@@ -89,6 +89,13 @@ struct Taken {
     corrupted: AtomicU64,
 }
 
+impl BenchBridge {
+    /// Whether the link (and the plain zenoh reference) run over mutual TLS.
+    pub fn uses_tls(&self) -> bool {
+        self.tls_dir.is_some()
+    }
+}
+
 pub fn run(args: BenchBridge) -> Result<()> {
     let stop = StopFlag::install();
     // The TLS files are checked before anything is made.

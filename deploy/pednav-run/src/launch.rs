@@ -102,6 +102,13 @@ pub fn check_memory(cfg: &RunConfig, file: &str, plan: &MemoryPlan) -> Result<()
     Ok(())
 }
 
+impl Launch {
+    /// Whether the link to actor hosts is mutual TLS.
+    pub fn uses_tls(&self) -> bool {
+        self.tls.given()
+    }
+}
+
 /// Prepare the run of `args` and supervise it to the end.
 pub fn launch(args: Launch) -> Result<()> {
     let Launch {

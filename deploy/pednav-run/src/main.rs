@@ -82,9 +82,32 @@ fn main() -> std::process::ExitCode {
     }
 }
 
+impl Cmd {
+    /// Whether this command links hosts over mutual TLS (its process, or a bridge it starts).
+    fn uses_tls(&self) -> bool {
+        match self {
+            Cmd::Launch(a) => a.uses_tls(),
+            Cmd::Join(a) => a.uses_tls(),
+            Cmd::Bridge(a) => a.uses_tls(),
+            Cmd::Bench(b) => b.uses_tls(),
+            Cmd::Check { .. } => false,
+        }
+    }
+}
+
 fn run() -> Result<()> {
+    let command = Cli::parse().command;
+    // Before anything starts a thread (zenoh reads it once, at its first use).
+    let runtime_set = tls::prepare_zenoh_runtime(command.uses_tls());
     pednav_runtime::init_logging();
-    match Cli::parse().command {
+    if runtime_set {
+        tracing::info!(
+            "TLS link: {}='{}' (zenoh 1.10's TLS link needs its reads and writes on one thread; docs/multi-host.md, TLS)",
+            pednav_bridge::link::ZENOH_RUNTIME_ENV,
+            pednav_bridge::link::TLS_SAFE_RUNTIME
+        );
+    }
+    match command {
         Cmd::Bench(b) => bench::run(b),
         Cmd::Check { config, actors, overrides } => {
             let cfg = RunConfig::load_with(&config, &overrides)?;

@@ -76,6 +76,20 @@ pub struct Bridge {
     tls: TlsArgs,
 }
 
+impl Join {
+    /// Whether the link to the learner host is mutual TLS.
+    pub fn uses_tls(&self) -> bool {
+        self.tls.given()
+    }
+}
+
+impl Bridge {
+    /// Whether the link between the hosts is mutual TLS.
+    pub fn uses_tls(&self) -> bool {
+        self.tls.given()
+    }
+}
+
 /// This machine's name, made key-safe.
 fn machine_name() -> String {
     let raw = std::fs::read_to_string("/proc/sys/kernel/hostname").unwrap_or_default();

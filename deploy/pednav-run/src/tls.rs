@@ -30,6 +30,11 @@ pub struct TlsArgs {
 }
 
 impl TlsArgs {
+    /// Whether the files were given (the link is then mutual TLS).
+    pub fn given(&self) -> bool {
+        self.tls_ca.is_some()
+    }
+
     /// The files, as absolute paths (the bridge process gets them too), if given.
     pub fn files(&self) -> Result<Option<TlsFiles>> {
         let (Some(ca), Some(certificate), Some(key)) = (&self.tls_ca, &self.tls_cert, &self.tls_key) else {
@@ -38,6 +43,22 @@ impl TlsArgs {
         let absolute = |p: &PathBuf| std::path::absolute(p).with_context(|| format!("the path {}", p.display()));
         Ok(Some(TlsFiles { ca: absolute(ca)?, certificate: absolute(certificate)?, key: absolute(key)? }))
     }
+}
+
+/// Give this process (and the children it starts, which inherit its environment)
+/// zenoh's runtime layout for TLS links when `uses_tls` and the user set none:
+/// [`pednav_bridge::link::TLS_SAFE_RUNTIME`] says why. Whether it was set here.
+///
+/// Call it first thing in `main`, before any thread exists.
+pub fn prepare_zenoh_runtime(uses_tls: bool) -> bool {
+    use pednav_bridge::link::{TLS_SAFE_RUNTIME, ZENOH_RUNTIME_ENV};
+    if !uses_tls || std::env::var_os(ZENOH_RUNTIME_ENV).is_some() {
+        return false;
+    }
+    // SAFETY: `main` calls this before it starts logging, zenoh, rayon or any child:
+    // the process has one thread, so nothing reads the environment while it changes.
+    unsafe { std::env::set_var(ZENOH_RUNTIME_ENV, TLS_SAFE_RUNTIME) };
+    true
 }
 
 /// The flags that hand TLS files on to a bridge process.

@@ -176,6 +176,13 @@ impl LinkConfig {
     /// Open the session.
     pub fn open(&self) -> Result<zenoh::Session> {
         let config = self.zenoh_config()?;
+        if self.tls.is_some() && !tls_runtime_is_safe() {
+            tracing::warn!(
+                "this process uses a tls/ link without {ZENOH_RUNTIME_ENV}='{TLS_SAFE_RUNTIME}': zenoh 1.10's TLS link \
+                 fails under load in both directions (links drop and reconnect; nothing is lost, little moves). \
+                 `pednav-run` sets it itself when the variable is unset; another layout must keep that part"
+            );
+        }
         zenoh::open(config).wait().map_err(|e| {
             BridgeError::Link(format!(
                 "could not open the link (listen {:?}, connect {:?}): {e}{}",
@@ -194,6 +201,32 @@ impl LinkConfig {
             ))
         })
     }
+}
+
+/// The environment variable zenoh reads its runtimes' layout from, once, when the
+/// process first uses zenoh.
+pub const ZENOH_RUNTIME_ENV: &str = "ZENOH_RUNTIME";
+
+/// The runtime layout a process with a `tls/` link needs: zenoh's link reads handed
+/// over to its single write thread.
+///
+/// zenoh 1.10's TLS link (`zenoh-link-tls`) keeps one rustls connection behind two
+/// separate locks, one for reads and one for writes, while zenoh reads on its `rx`
+/// threads and writes on its `tx` thread: both touch the connection at once, which
+/// rustls does not allow (upstream eclipse-zenoh/zenoh#2557). A write that lands while
+/// a read decrypts fails ("handshake not complete"), and zenoh closes the link. With
+/// this layout reads and writes run on one thread and never overlap (measured:
+/// docs/multi-host.md, *TLS*). Plain TCP shares nothing between its two directions
+/// and keeps zenoh's default layout.
+pub const TLS_SAFE_RUNTIME: &str = "(rx: (handover: tx))";
+
+/// Whether this process runs zenoh with a link's reads handed over to its write thread
+/// (a user's own [`ZENOH_RUNTIME_ENV`] may say more, as long as it says that).
+fn tls_runtime_is_safe() -> bool {
+    std::env::var(ZENOH_RUNTIME_ENV).is_ok_and(|v| {
+        let v: String = v.chars().filter(|c| !c.is_whitespace()).collect();
+        v.contains("rx:(handover:tx)")
+    })
 }
 
 /// Close a session, waiting until its links are down (a close that fails leaves
