@@ -52,6 +52,9 @@ fn main() -> Result<()> {
     let dir = RunDir::new(&cli.run_dir);
     let cfg = dir.load_config()?;
     let device = cli.device.unwrap_or(cfg.runtime.actor_device).open()?;
+    if device.is_cpu() {
+        tracing::info!(conv_precision = cfg.nets.conv_precision.resolved().name(), "actor convolutions");
+    }
     let opts = process::ActorOptions { actor: cli.actor, envs: cli.envs, device };
     process::ActorProcess::open(dir, cfg, opts, stop)?.run()
 }

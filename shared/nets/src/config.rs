@@ -48,8 +48,9 @@ pub struct NetsConfig {
     /// own encoder. `true`: one encoder, trained by the critic loss; the policy and
     /// fraction heads use its features detached (≈ 3× less encoder compute).
     pub shared_encoder: bool,
-    /// Arithmetic of the encoders' convolutions: `f32` (default) or `bf16` (mixed
-    /// precision on CPUs with AVX-512 BF16; beyond the paper, see docs/performance.md).
+    /// Arithmetic of the encoders' convolutions: `f32` (default), `bf16` (mixed
+    /// precision on CPUs with AVX-512 BF16; beyond the paper, see docs/performance.md)
+    /// or `auto` (bf16 where the CPU has it, f32 elsewhere).
     pub conv_precision: ConvPrecision,
 }
 
@@ -103,7 +104,7 @@ impl NetsConfig {
                 self.conv_precision.name(),
                 format!(
                     "needs AVX-512 BF16 on the `avx512` path (this CPU: AVX-512 BF16 {}, path `{}`); \
-                     set it to \"f32\"",
+                     set it to \"f32\", or to \"auto\" (bf16 where the CPU has it)",
                     if crate::ops::conv::cpu_has_bf16() { "present" } else { "absent" },
                     crate::ops::Isa::active()
                 ),
@@ -150,5 +151,17 @@ mod tests {
         // The MLP encoder has no convolution: any precision is fine.
         let mlp = NetsConfig { encoder: EncoderKind::Mlp, ..bf16_cfg };
         assert!(mlp.validate().is_ok());
+    }
+
+    /// `auto` runs everywhere and becomes bf16 exactly where bf16 may be asked for.
+    #[test]
+    fn auto_precision_is_bf16_where_the_cpu_has_it_and_f32_elsewhere() {
+        let auto = NetsConfig { conv_precision: ConvPrecision::Auto, ..NetsConfig::default() };
+        assert!(auto.validate().is_ok());
+        assert!(auto.same_architecture(&NetsConfig::default()));
+        let expected = if crate::ops::conv::bf16_available() { ConvPrecision::Bf16 } else { ConvPrecision::F32 };
+        assert_eq!(ConvPrecision::Auto.resolved(), expected);
+        assert_eq!(ConvPrecision::F32.resolved(), ConvPrecision::F32);
+        assert_eq!(ConvPrecision::Bf16.resolved(), ConvPrecision::Bf16);
     }
 }

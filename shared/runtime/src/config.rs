@@ -391,6 +391,19 @@ mod tests {
         assert_eq!(back, cfg);
     }
 
+    /// `conv_precision = "auto"` is written as it was given (each process resolves it
+    /// for its own CPU) and is valid on every machine.
+    #[test]
+    fn auto_precision_round_trips_and_is_valid_everywhere() {
+        let mut cfg = RunConfig::default();
+        cfg.nets.conv_precision = pednav_nets::ConvPrecision::Auto;
+        cfg.validate("auto.toml").unwrap();
+        let text = cfg.to_toml();
+        assert!(text.contains("conv_precision = \"auto\""), "{text}");
+        let back: RunConfig = toml::from_str(&text).unwrap();
+        assert_eq!(back.nets.conv_precision, pednav_nets::ConvPrecision::Auto);
+    }
+
     #[test]
     fn errors_name_the_field_and_value() {
         let mut cfg = RunConfig::default();

@@ -52,6 +52,8 @@ fn main() -> Result<()> {
     let cfg = dir.load_config()?;
     let device_spec = cli.device.unwrap_or(cfg.runtime.device);
     let device = device_spec.open()?;
-    tracing::info!(device = %device_spec, threads, "learner device");
+    // The CPU kernels' arithmetic (`auto` resolved for this CPU); CUDA runs candle's own.
+    let conv_precision = if device.is_cpu() { cfg.nets.conv_precision.resolved().name() } else { "cuda" };
+    tracing::info!(device = %device_spec, threads, conv_precision, "learner device");
     process::LearnerProcess::open(dir, cfg, &device, stop)?.run()
 }

@@ -33,7 +33,8 @@
 //! too (gy·Wᵀ added straight into a padded input gradient); the rest, and the
 //! baseline instruction set, use gemm and col2im.
 //!
-//! With `ConvSpec::bf16` (`nets.conv_precision = "bf16"`) and a CPU with AVX-512
+//! With `ConvSpec::bf16` (`nets.conv_precision = "bf16"`, or `"auto"` where the CPU
+//! has it) and a CPU with AVX-512
 //! BF16 on the `avx512` path, the direct kernels' layers multiply in bf16 and sum in
 //! f32 ([`bf16`]: forward and weight gradient for C_out ∈ {16, 32, 64} with even
 //! k_w·C_in, the input gradient where the f32 direct one applies); every other layer
@@ -76,6 +77,11 @@ pub enum ConvPrecision {
     /// layer stay f32. Needs a CPU with AVX-512 BF16 on the `avx512` path (Zen 4 and
     /// later, Xeons since Cooper Lake).
     Bf16,
+    /// `Bf16` where this process can run it (a CPU with AVX-512 BF16 on the `avx512`
+    /// path), `F32` elsewhere: one config for every machine, each using what it has.
+    /// Which one a process computes in is [`ConvPrecision::resolved`] (the learner and
+    /// the actors log it).
+    Auto,
 }
 
 impl ConvPrecision {
@@ -84,6 +90,17 @@ impl ConvPrecision {
         match self {
             ConvPrecision::F32 => "f32",
             ConvPrecision::Bf16 => "bf16",
+            ConvPrecision::Auto => "auto",
+        }
+    }
+
+    /// The precision this process computes in: `Auto` becomes `Bf16` where
+    /// [`bf16_available`], else `F32`; the other two are themselves.
+    pub fn resolved(self) -> ConvPrecision {
+        match self {
+            ConvPrecision::Auto if bf16_available() => ConvPrecision::Bf16,
+            ConvPrecision::Auto => ConvPrecision::F32,
+            p => p,
         }
     }
 }
@@ -145,9 +162,10 @@ impl ConvSpec {
         self
     }
 
-    /// The same convolution multiplying in `precision` (see [`ConvSpec::bf16`]).
+    /// The same convolution multiplying in `precision`, resolved for this process
+    /// (see [`ConvSpec::bf16`], [`ConvPrecision::resolved`]).
     pub fn with_precision(mut self, precision: ConvPrecision) -> ConvSpec {
-        self.bf16 = precision == ConvPrecision::Bf16;
+        self.bf16 = precision.resolved() == ConvPrecision::Bf16;
         self
     }
 
