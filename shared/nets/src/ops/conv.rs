@@ -33,9 +33,8 @@
 //! too (gy·Wᵀ added straight into a padded input gradient); the rest, and the
 //! baseline instruction set, use gemm and col2im.
 //!
-//! With `ConvSpec::bf16` (`nets.conv_precision = "bf16"`, or `"auto"` where the CPU
-//! has it) and a CPU with AVX-512
-//! BF16 on the `avx512` path, the direct kernels' layers multiply in bf16 and sum in
+//! With `ConvSpec::bf16` (`nets.conv_precision = "bf16"`, or `"auto"`) and a CPU with
+//! AVX-512 BF16 on the `avx512` path, the direct kernels' layers multiply in bf16 and sum in
 //! f32 ([`bf16`]: forward and weight gradient for C_out ∈ {16, 32, 64} with even
 //! k_w·C_in, the input gradient where the f32 direct one applies); every other layer
 //! and path stays f32.
