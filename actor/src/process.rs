@@ -4,9 +4,13 @@
 //! render, send the steps and the finished episodes' reports, log.
 //!
 //! Invariants: nothing is sent while no learner is subscribed (the [`StepWriter`]
-//! waits); every record carries the weights version its action came from; the
-//! actor's seed is `run seed ⊕ actor id`, mixed with the incarnation so a restarted
-//! actor does not replay its predecessor's episodes.
+//! waits); every finished episode is reported and its report held until the
+//! curriculum service has saved it, or given up when the window is full (the
+//! [`EpisodeReporter`]; the actor waits at its end, [`REPORTS_FLUSH_WAIT`] at most,
+//! for word that the service took the last ones); every record
+//! carries the weights version its action came from; the actor's seed is
+//! `run seed ⊕ actor id`, mixed with the incarnation so a restarted actor does not
+//! replay its predecessor's episodes.
 
 use std::collections::{BTreeSet, VecDeque};
 use std::sync::Arc;
@@ -28,6 +32,10 @@ use pednav_sim::policy::RandomPolicy;
 use pednav_sim::{BackendChoice, DiscountedReturn, ObsMode, Policy, Pose, STATE_OBS_DIM, SimWorld, VecEnv};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
+
+/// How long a stopping actor waits for the acknowledgement of the episode reports it
+/// still holds (while their receiver is there).
+pub const REPORTS_FLUSH_WAIT: Duration = Duration::from_secs(3);
 
 /// Per-environment episode bookkeeping.
 struct Episode {
@@ -151,7 +159,8 @@ impl ActorProcess {
             cfg.runtime.resend_window(),
             stop.clone(),
         )?;
-        let reports = EpisodeReporter::open(&ipc, cfg.sim.t_max as usize + 1, stop.clone())?;
+        let reports =
+            EpisodeReporter::open(&ipc, StreamId { actor: opts.actor, incarnation }, cfg.sim.t_max as usize + 1)?;
         let tasks = TaskRequester::open(&ipc, Duration::from_secs_f64(cfg.runtime.task_timeout_secs), stop.clone())?;
         let weights = WeightsClient::open(&ipc)?;
         let heartbeat = ipc.heartbeat_publisher()?;
@@ -222,6 +231,8 @@ impl ActorProcess {
         if !self.step_envs()? {
             return Ok(false);
         }
+        // Reports that went without an acknowledgement go out again.
+        self.reports.pump()?;
         if self.timing.started.elapsed().as_secs_f64() >= self.cfg.runtime.metrics_every_secs {
             self.log_interval()?;
         }
@@ -358,12 +369,10 @@ impl ActorProcess {
                 length: ep.step,
                 discounted_return: ep.ret.value() as f32,
                 total_reward: ep.ret.undiscounted() as f32,
-                incarnation: self.incarnation,
-                seq: self.counters.episodes,
+                // The reporter numbers it (seq, low-water mark).
+                ..EpisodeHeader::default()
             };
-            if !self.reports.send(header, &ep.points)? {
-                return Ok(false);
-            }
+            self.reports.report(header, &ep.points)?;
             let c = &mut self.counters;
             c.episodes += 1;
             c.recent_returns.push_back(ep.ret.value() as f32);
@@ -443,10 +452,23 @@ impl ActorProcess {
             records_resent: self.steps.resends().resent,
             resend_requests: self.steps.resends().requests,
             resend_timeouts: self.steps.resends().timeouts,
+            reports_resent: self.reports.counts().resent,
+            reports_given_up: self.reports.counts().given_up,
+            reports_unacknowledged: self.reports.counts().untaken,
         }
     }
 
-    fn finish(&self, status: ProcessStatus) -> Result<()> {
+    fn finish(&mut self, status: ProcessStatus) -> Result<()> {
+        // Word that the last reports were taken, while their receiver is there; a
+        // failure here is logged, the final stats are written regardless.
+        match self.reports.flush(REPORTS_FLUSH_WAIT) {
+            Ok(0) => {}
+            Ok(n) => tracing::warn!(
+                reports = n,
+                "episode reports not acknowledged by the curriculum service when the actor stopped"
+            ),
+            Err(e) => tracing::warn!("the last episode reports could not be sent: {e}"),
+        }
         self.dir.write_stats(&stats::actor_final(self.actor, self.incarnation), &self.stats(status))?;
         tracing::info!(
             steps = self.counters.steps,

@@ -15,6 +15,7 @@ use std::path::{Path, PathBuf};
 use serde::{Deserialize, Serialize};
 
 use pednav_runtime::generations::{Generations, Halt, SaveFault, SaveReport, SaveSteps, write_synced};
+use pednav_runtime::reports::ReportCursors;
 
 use crate::curriculum::CurriculumState;
 use crate::error::{CurriculumError, Result};
@@ -31,6 +32,11 @@ pub struct ServiceState {
     /// Decision steps of all reported episodes.
     #[serde(default)]
     pub decision_steps: u64,
+    /// Which episode reports of every actor the curriculum holds (saved with it, so a
+    /// restored service takes again exactly the reports its state lacks; a state
+    /// written before reports were acknowledged has none).
+    #[serde(default)]
+    pub report_cursors: ReportCursors,
 }
 
 /// What precedes the checksum of a saved state (after its JSON).

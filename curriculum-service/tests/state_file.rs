@@ -13,7 +13,13 @@ use pednav_sim::Scene;
 
 fn state(next_task_id: u64) -> ServiceState {
     let c = Curriculum::new(CurriculumConfig::default(), Scene::reference(), 3).unwrap();
-    ServiceState { curriculum: c.state().unwrap(), next_task_id, proposed: BTreeMap::new(), decision_steps: 7 }
+    ServiceState {
+        curriculum: c.state().unwrap(),
+        next_task_id,
+        proposed: BTreeMap::new(),
+        decision_steps: 7,
+        report_cursors: Default::default(),
+    }
 }
 
 #[test]

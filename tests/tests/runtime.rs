@@ -61,6 +61,11 @@ fn actor_learner_curriculum_run_restart_and_resume() {
         .find(|s| s.actor == 0 && s.incarnation == 2)
         .expect("the learner saw the replacement actor's stream");
     assert_eq!(tally.records, replacement.steps_sent, "learner records vs actor sends");
+    assert_eq!(
+        (replacement.reports_unacknowledged, replacement.reports_given_up),
+        (0, 0),
+        "the curriculum service acknowledged every episode report of the replacement actor: {replacement:?}"
+    );
     assert_eq!(tally.checksum, replacement.checksum, "frame checksum");
     assert_eq!(tally.first_seq, Some(0), "the stream reached the learner from its first record");
     for s in &final_learner.streams {
@@ -153,6 +158,16 @@ fn actor_learner_curriculum_run_restart_and_resume() {
     let first = t.first_seq.expect("the restarted learner took records of the stream");
     assert_eq!(first + t.records, sender.steps_sent, "the restarted learner has the stream to its end: {t:?}");
     assert!(first > 0, "the stream began before the restart: {t:?}");
+    // Its episode reports crossed the curriculum service's SIGKILL: the actor held each
+    // until the service saved it, and sent again what the restored service lacked, so
+    // the last service holds every one (`pednav_runtime::reports`).
+    let reports = after.reports_taken.iter().find(|r| (r.actor, r.incarnation) == (0, crossing));
+    assert_eq!(
+        reports.map(|r| r.taken),
+        Some(sender.episodes),
+        "the curriculum service holds every report of the actor that lived through its kill: {:?} ({sender:?})",
+        after.reports_taken
+    );
     assert!(after.episodes >= first_curriculum.episodes, "curriculum counters carried over");
 }
 

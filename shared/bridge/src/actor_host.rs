@@ -7,25 +7,23 @@
 //! - the learner's acknowledgement tables and the weights ← the link, newest wins,
 //!   republished on the local services (the newest weights are asked for at once, so a
 //!   host that joins late acts on the current policy from its first step);
-//! - the learner host's acknowledgements of episode reports ← the link: the bridge
-//!   holds each report ([`HeldReports`], at most [`HELD_REPORTS`]) until it is
-//!   acknowledged, sends it again [`REPORT_RESEND_AFTER`] after it went without one and
-//!   when the learner host comes back, and puts none on the link while the learner
-//!   host is away ([`crate::reports`]);
+//! - the curriculum service's acknowledgements of episode reports ← the link, newest
+//!   wins, republished on the local service the actors read them from (while the
+//!   learner host is away no report is put on the link: each actor holds its reports
+//!   until they are acknowledged and sends them again, `pednav_runtime::reports`);
 //! - task requests → a query to the learner host, whose answer goes back to the actor;
 //! - heartbeats both ways: the local actors' out, the learner's and the curriculum
 //!   service's in (the local progress line shows the run's progress);
 //! - the run's end ← the link: the learner host's "done" becomes the local run's done
 //!   marker, so the local launcher stops its actors.
 //!
-//! Invariant: the bridge holds no step record. A record is in its actor's window until
-//! a learner acknowledges it ([`pednav_runtime::reliable`]), so a bridge that dies, a
-//! link that drops and a learner host that restarts lose nothing: the learner asks
-//! again for what it lacks, or the actor sends its full window again unasked. Episode
-//! reports are held here, not in the actor: a link that drops and a learner host that
-//! restarts lose none, but a bridge that dies loses those it held unacknowledged (at
-//! most a quarter of a second's, while the learner host is there) and those its actors
-//! reported before its replacement was up.
+//! Invariant: the bridge holds no step record and no episode report. A record is in
+//! its actor's window until a learner acknowledges it ([`pednav_runtime::reliable`]),
+//! a report until the curriculum service acknowledges it
+//! ([`pednav_runtime::reports`]), so a bridge that dies, a link that drops and a
+//! learner host that restarts lose nothing: the learner asks again for what it lacks,
+//! or the actor sends its full window again unasked; a report without an
+//! acknowledgement goes out again from its actor.
 
 use std::collections::HashMap;
 use std::path::PathBuf;
@@ -36,9 +34,10 @@ use std::time::{Duration, Instant};
 
 use pednav_runtime::StopFlag;
 use pednav_runtime::ipc::{
-    EpisodeSubscriber, StepSample, StepSubscriber, TaskActive, WeightsPublisher, receive_step_round,
+    EpisodeAckPublisher, EpisodeSubscriber, StepSample, StepSubscriber, TaskActive, WeightsPublisher,
+    receive_step_round,
 };
-use pednav_runtime::messages::{ProcessKind, TaskResponse};
+use pednav_runtime::messages::{EpisodeAck, EpisodeAckTable, ProcessKind, TaskResponse};
 use zenoh::Wait;
 use zenoh::bytes::ZBytes;
 use zenoh::handlers::FifoChannelHandler;
@@ -49,7 +48,6 @@ use zenoh::sample::SampleKind;
 use crate::error::{BridgeError, Result};
 use crate::forward::{BridgeStats, IDLE, LEARNER_HOST, Latest, LocalRun, STATS_EVERY, Tally, link_err, refuse};
 use crate::link::{Keys, LinkConfig};
-use crate::reports::HeldReports;
 use crate::wire;
 
 /// How long a task request waits for the learner host's answer (the actor asks again
@@ -72,17 +70,6 @@ pub struct ActorHostOptions {
 /// Rounds of step records one pass of the bridge's loop forwards at most.
 const ROUNDS_PER_PASS: usize = 64;
 
-/// Episode reports held unacknowledged, at most (while the learner host is away: the
-/// oldest are given up first, and counted).
-pub const HELD_REPORTS: usize = 65_536;
-
-/// How long a report that was put on the link waits for its acknowledgement before
-/// it is sent again (acknowledgements come every quarter of a second).
-pub const REPORT_RESEND_AFTER: Duration = Duration::from_secs(2);
-
-/// How long a stopping bridge waits for the acknowledgement of the reports it holds.
-const LAST_ACKS_WAIT: Duration = Duration::from_secs(3);
-
 /// A task request waiting for the learner host's answer.
 struct TaskInFlight {
     request: TaskActive,
@@ -99,6 +86,7 @@ pub fn run_actor_host(opts: &ActorHostOptions, stop: &StopFlag) -> Result<Bridge
     let steps_in = ipc.step_subscriber()?;
     let episodes_in = ipc.episode_subscriber()?;
     let acks_out = ipc.ack_publisher()?;
+    let report_acks_out = ipc.episode_ack_publisher()?;
     let tasks_in = ipc.task_server()?;
     let beats_in = ipc.heartbeat_subscriber()?;
     let beats_out = ipc.heartbeat_publisher()?;
@@ -143,7 +131,6 @@ pub fn run_actor_host(opts: &ActorHostOptions, stop: &StopFlag) -> Result<Bridge
         tally: &tally,
         steps: HashMap::new(),
         episodes: HashMap::new(),
-        reports: HeldReports::new(HELD_REPORTS),
         round: Vec::new(),
     };
     let beats_link = session
@@ -168,7 +155,7 @@ pub fn run_actor_host(opts: &ActorHostOptions, stop: &StopFlag) -> Result<Bridge
                 Err(e) => refuse(&tally, &e),
             }
         }
-        busy |= out.acknowledge_reports(&report_acks);
+        busy |= forward_report_acks(&report_acks, &report_acks_out, &tally)?;
         if let Some(bytes) = weights.take() {
             busy = true;
             publish_weights(&ipc, &bytes, &mut weights_out, &tally)?;
@@ -195,8 +182,6 @@ pub fn run_actor_host(opts: &ActorHostOptions, stop: &StopFlag) -> Result<Bridge
             learner_seen = alive;
             if alive {
                 tracing::info!("the learner host is on the link");
-                // What was on its way when it left may be lost: send every held report again.
-                out.reports.resend_all();
             } else {
                 Tally::add(&tally.hosts_gone, 1);
                 tracing::warn!(
@@ -227,20 +212,6 @@ pub fn run_actor_host(opts: &ActorHostOptions, stop: &StopFlag) -> Result<Bridge
             break;
         }
     }
-    // Wait a little for the acknowledgement of the last reports (sending again what
-    // goes without one), so that none is left unconfirmed when the learner host is there.
-    let waited = Instant::now();
-    while !out.reports.is_empty() && learner_alive.load(Ordering::Relaxed) && waited.elapsed() < LAST_ACKS_WAIT {
-        out.acknowledge_reports(&report_acks);
-        out.forward(&steps_in, &episodes_in, true)?;
-        std::thread::sleep(Duration::from_millis(20));
-    }
-    if !out.reports.is_empty() {
-        tracing::warn!(
-            reports = out.reports.len(),
-            "episode reports were not acknowledged by the learner host before this bridge stopped"
-        );
-    }
     drop(out);
     let stats = tally.snapshot("actor-host", &opts.host, &opts.run);
     local.write_stats(&stats);
@@ -255,15 +226,14 @@ struct Outbound<'a> {
     tally: &'a Tally,
     steps: HashMap<u32, zenoh::pubsub::Publisher<'static>>,
     episodes: HashMap<u32, zenoh::pubsub::Publisher<'static>>,
-    /// Episode reports not yet acknowledged by the learner host.
-    reports: HeldReports,
     round: Vec<StepSample>,
 }
 
 impl Outbound<'_> {
     /// Put every queued step record and episode report on the link, each on its
-    /// actor's key; reports wait while the learner host is away (`learner_alive`
-    /// false). Returns whether anything moved.
+    /// actor's key; reports are not put there while the learner host is away
+    /// (`learner_alive` false: their actors send them again). Returns whether anything
+    /// moved.
     fn forward(&mut self, steps: &StepSubscriber, episodes: &EpisodeSubscriber, learner_alive: bool) -> Result<bool> {
         let mut busy = false;
         // Rounds until the queues are empty, at most ROUNDS_PER_PASS (the loop's other
@@ -297,50 +267,54 @@ impl Outbound<'_> {
         Ok(any)
     }
 
-    /// Every new episode report, held; the held ones that are due put on the link
-    /// while the learner host is there.
+    /// Every new episode report on the link, while the learner host is there.
     fn forward_reports(&mut self, episodes: &EpisodeSubscriber, learner_alive: bool) -> Result<bool> {
         let mut busy = false;
         while let Some(sample) = episodes.receive().map_err(|e| BridgeError::Link(format!("episodes: {e:?}")))? {
             busy = true;
             let h = sample.user_header();
-            let bytes = wire::encode_episode(h, h.seq, sample.payload());
-            if self.reports.push(h.actor, h.incarnation, h.seq, bytes) {
-                Tally::add(&self.tally.reports_given_up, 1);
+            if !learner_alive {
+                Tally::add(&self.tally.not_delivered, 1);
+                continue;
             }
-        }
-        if !learner_alive {
-            return Ok(busy);
-        }
-        let (session, keys, tally, links) = (self.session, self.keys, self.tally, &mut self.episodes);
-        let sent = self.reports.send_due(Instant::now(), REPORT_RESEND_AFTER, |actor, bytes| {
-            let put = link_for(session, links, actor, || keys.episodes(actor))
-                .and_then(|link| link.put(bytes.to_vec()).wait().map_err(link_err("episode report")));
+            let put =
+                link_for(self.session, &mut self.episodes, h.actor, || self.keys.episodes(h.actor)).and_then(|link| {
+                    link.put(wire::encode_episode(h, sample.payload())).wait().map_err(link_err("episode report"))
+                });
             match put {
-                Ok(()) => true,
+                Ok(()) => Tally::add(&self.tally.episode_reports, 1),
                 Err(e) => {
-                    tracing::warn!(actor, "an episode report was not put on the link (it is sent again): {e}");
-                    false
+                    Tally::add(&self.tally.not_delivered, 1);
+                    tracing::debug!(
+                        actor = h.actor,
+                        seq = h.seq,
+                        "episode report not put on the link (its actor sends it again): {e}"
+                    );
                 }
             }
-        });
-        Tally::add(&tally.episode_reports, sent as u64);
-        Ok(busy || sent > 0)
-    }
-
-    /// Drop the held reports the learner host acknowledged; whether an
-    /// acknowledgement came.
-    fn acknowledge_reports(&mut self, slot: &Latest<ZBytes>) -> bool {
-        let Some(bytes) = slot.take() else { return false };
-        match wire::decode_report_acks(&bytes.to_bytes()) {
-            Ok(acks) => {
-                self.reports.acknowledge(&acks);
-                Tally::add(&self.tally.report_acks, 1);
-            }
-            Err(e) => refuse(self.tally, &e),
         }
-        true
+        Ok(busy)
     }
+}
+
+/// Republish the newest acknowledgements of episode reports from the link on the
+/// local service the actors read; whether one came.
+fn forward_report_acks(slot: &Latest<ZBytes>, out: &EpisodeAckPublisher, tally: &Tally) -> Result<bool> {
+    let Some(bytes) = slot.take() else { return Ok(false) };
+    match wire::decode_report_acks(&bytes.to_bytes()) {
+        Ok(acks) => {
+            let mut table = EpisodeAckTable::default();
+            for a in acks {
+                // decode_report_acks refuses ids at or above MAX_ACTORS.
+                table.actors[a.actor as usize] =
+                    EpisodeAck { incarnation: a.incarnation, reserved: 0, taken: a.taken, saved: a.saved };
+            }
+            out.send_copy(table).map_err(|e| BridgeError::Link(format!("episode ack table: {e:?}")))?;
+            Tally::add(&tally.report_acks, 1);
+        }
+        Err(e) => refuse(tally, &e),
+    }
+    Ok(true)
 }
 
 /// A subscriber that keeps the newest payload on `key` in `slot`.

@@ -77,12 +77,11 @@ pub struct Tally {
     pub step_records: AtomicU64,
     /// Their observation bytes.
     pub step_bytes: AtomicU64,
-    /// Episode reports moved (an actor host counts every put on the link, reports
-    /// sent again included; the learner host those it published).
+    /// Episode reports moved (reports sent again by their actor included).
     pub episode_reports: AtomicU64,
     /// Acknowledgement tables (of step records) moved.
     pub ack_tables: AtomicU64,
-    /// Acknowledgements of episode reports moved.
+    /// Acknowledgement tables of episode reports moved.
     pub report_acks: AtomicU64,
     /// Weights versions moved.
     pub weights: AtomicU64,
@@ -93,20 +92,15 @@ pub struct Tally {
     /// Messages refused (malformed, another version, an actor id that is not the
     /// sender's, an observation of another size).
     pub refused: AtomicU64,
-    /// Records or reports not delivered to the local services: ones a learner or
-    /// curriculum service did not take (gone or stalled past `runtime.give_up_secs`),
-    /// and ones a learner-host worker dropped beyond its backlog. The actor still holds
-    /// each step record and sends it again when asked; the actor host holds each
-    /// episode report until it is acknowledged and sends it again.
+    /// Records or reports not delivered: ones a learner or curriculum service did not
+    /// take (gone or stalled past `runtime.give_up_secs`), ones a learner-host worker
+    /// dropped beyond its backlog, and reports an actor host did not put on the link
+    /// while the learner host was away. The actor still holds each step record and
+    /// sends it again when asked, and each episode report until the curriculum service
+    /// acknowledges it.
     pub not_delivered: AtomicU64,
     /// Times a host's liveliness token was withdrawn.
     pub hosts_gone: AtomicU64,
-    /// Episode reports that came again after they were published (sent again before
-    /// their acknowledgement reached the actor host), dropped.
-    pub duplicate_reports: AtomicU64,
-    /// Episode reports the actor host gave up: its window of unacknowledged reports
-    /// overflowed while the learner host was away.
-    pub reports_given_up: AtomicU64,
 }
 
 impl Tally {
@@ -133,8 +127,6 @@ impl Tally {
             refused: get(&self.refused),
             not_delivered: get(&self.not_delivered),
             hosts_gone: get(&self.hosts_gone),
-            duplicate_reports: get(&self.duplicate_reports),
-            reports_given_up: get(&self.reports_given_up),
         }
     }
 }
@@ -160,8 +152,6 @@ pub struct BridgeStats {
     pub refused: u64,
     pub not_delivered: u64,
     pub hosts_gone: u64,
-    pub duplicate_reports: u64,
-    pub reports_given_up: u64,
 }
 
 /// The run a bridge serves: its directory, resolved config and local services.

@@ -7,9 +7,9 @@
 //! - the learner's acknowledgement tables → the link (*Drop*: the next table replaces
 //!   a lost one), and the weights → the link (*Block*), the newest kept to answer a
 //!   host that asks for it when it joins;
-//! - the acknowledgements of the remote actors' episode reports → the link, every
-//!   [`REPORT_ACKS_EVERY`] (*Drop*: they are cumulative, the next replaces a lost one;
-//!   [`crate::reports`]);
+//! - the curriculum service's acknowledgements of the remote actors' episode reports
+//!   → the link, every [`REPORT_ACKS_EVERY`] (*Drop*: they are cumulative, the next
+//!   replaces a lost one; `pednav_runtime::reports`);
 //! - task requests ← the link, asked of the local curriculum service and answered;
 //! - heartbeats both ways: the learner's and the curriculum service's out, the remote
 //!   actors' in (the progress line counts them, and the learner reads from them what a
@@ -21,7 +21,9 @@
 //!
 //! Invariant: nothing the bridge receives waits on anything in a zenoh callback
 //! ([`crate::forward`]); a remote record the learner cannot take (gone, stalled) is
-//! dropped here and sent again by its actor, whose window still holds it.
+//! dropped here and sent again by its actor, whose window still holds it, and so is a
+//! report the curriculum service cannot take. The bridge keeps no record of what went
+//! through it: the learner and the curriculum service drop what comes twice.
 
 use std::collections::VecDeque;
 use std::path::PathBuf;
@@ -31,7 +33,7 @@ use std::time::{Duration, Instant};
 
 use pednav_runtime::StopFlag;
 use pednav_runtime::ipc::{TaskClient, TaskPending};
-use pednav_runtime::messages::ProcessKind;
+use pednav_runtime::messages::{EpisodeAckTable, MAX_ACTORS, ProcessKind};
 use zenoh::Wait;
 use zenoh::bytes::ZBytes;
 use zenoh::qos::CongestionControl;
@@ -51,7 +53,7 @@ const TASKS_IN_FLIGHT: usize = 8;
 /// How long a task request waits for the curriculum service before it is dropped
 /// (the remote actor asks again).
 const TASK_TIMEOUT: Duration = Duration::from_secs(5);
-/// How often the episode report acknowledgements are sent.
+/// How often the remote actors' episode report acknowledgements are sent.
 const REPORT_ACKS_EVERY: Duration = Duration::from_millis(250);
 /// How often the learner's done marker is looked for, and the run's end said again
 /// once it is over.
@@ -86,6 +88,7 @@ pub fn run_learner_host(opts: &LearnerHostOptions, stop: &StopFlag) -> Result<Br
     let session = opts.link.open()?;
     let ipc = local.ipc("bridge", stop)?;
     let acks_in = ipc.ack_subscriber()?;
+    let report_acks_in = ipc.episode_ack_subscriber()?;
     let weights_in = ipc.weights_subscriber()?;
     let tasks_out = ipc.task_client()?;
     let beats_in = ipc.heartbeat_subscriber()?;
@@ -167,6 +170,8 @@ pub fn run_learner_host(opts: &LearnerHostOptions, stop: &StopFlag) -> Result<Br
         .map_err(link_err("heartbeat publisher"))?;
 
     let mut tasks = TaskDesk { waiting: VecDeque::new(), in_flight: Vec::new() };
+    // The curriculum service's newest acknowledgements of episode reports.
+    let mut report_acks = EpisodeAckTable::default();
     let (mut last_stats, mut last_done, mut last_report_acks) = (Instant::now(), Instant::now(), Instant::now());
     tracing::info!(%run, listen = ?opts.link.listen, local_actors = opts.local_actors, "learner-host bridge up");
 
@@ -236,10 +241,15 @@ pub fn run_learner_host(opts: &LearnerHostOptions, stop: &StopFlag) -> Result<Br
                 tracing::warn!(%host, actors = %ids, "a host left the link: its actors are gone until it is back");
             }
         }
+        while let Some(t) = report_acks_in.receive().map_err(|e| BridgeError::Link(format!("episode acks: {e:?}")))? {
+            report_acks = *t.payload();
+        }
         if last_report_acks.elapsed() >= REPORT_ACKS_EVERY {
             last_report_acks = Instant::now();
-            let acks = remote.report_acks();
-            if !acks.is_empty() && report_acks_link.put(wire::encode_report_acks(&acks)).wait().is_ok() {
+            // Sent even when empty: a restarted curriculum service that holds nothing of
+            // an actor says so by leaving it out, and its actor then sends again.
+            let acks = remote_entries(&report_acks, opts.local_actors);
+            if report_acks_link.put(wire::encode_report_acks(&acks)).wait().is_ok() {
                 Tally::add(&tally.report_acks, 1);
             }
         }
@@ -262,8 +272,14 @@ pub fn run_learner_host(opts: &LearnerHostOptions, stop: &StopFlag) -> Result<Br
     }
     // No callback may hand a worker anything once the workers are joined.
     drop(declared);
-    // The last acknowledgements, so an actor host still up drops what was published.
-    let acks = remote.join();
+    remote.join();
+    // The newest acknowledgements once more, so an actor host still up hears of what
+    // was taken last (the curriculum service stops after this bridge: what it saves
+    // then, its actors learn of when the run resumes).
+    while let Ok(Some(t)) = report_acks_in.receive() {
+        report_acks = *t.payload();
+    }
+    let acks = remote_entries(&report_acks, opts.local_actors);
     if !acks.is_empty() {
         let _ = session
             .put(keys.report_acks(), wire::encode_report_acks(&acks))
@@ -274,6 +290,22 @@ pub fn run_learner_host(opts: &LearnerHostOptions, stop: &StopFlag) -> Result<Br
     local.write_stats(&stats);
     crate::link::close(session);
     Ok(stats)
+}
+
+/// The entries of `table` for remote actors (ids from `local_actors` on) that have
+/// reported, as they travel on the link.
+fn remote_entries(table: &EpisodeAckTable, local_actors: u32) -> Vec<wire::ReportAck> {
+    (local_actors..MAX_ACTORS as u32)
+        .filter_map(|actor| {
+            let a = table.actors[actor as usize];
+            (a.incarnation != 0).then_some(wire::ReportAck {
+                actor,
+                incarnation: a.incarnation,
+                taken: a.taken,
+                saved: a.saved,
+            })
+        })
+        .collect()
 }
 
 /// Tell the actor hosts that the run is over, if the learner wrote its done marker;

@@ -12,10 +12,12 @@
 //! - [`learner_host`] and [`actor_host`]: the two bridges, each a loop between its
 //!   host's iceoryx2 services and the link (`pednav-run bridge` runs one).
 //!
-//! Losslessness of step records across hosts is not here but in
-//! `pednav_runtime::reliable`: step records carry (actor, incarnation, seq, base) and
-//! the learner's acknowledgements travel back, whatever carries them. Episode reports
-//! are acknowledged between the two bridges (`reports`).
+//! Losslessness across hosts is not here but at the ends: step records carry (actor,
+//! incarnation, seq, base) and the learner's acknowledgements travel back
+//! (`pednav_runtime::reliable`); episode reports carry (actor, incarnation, seq,
+//! low-water mark) and the curriculum service's acknowledgements travel back
+//! (`pednav_runtime::reports`), whatever carries them. A bridge holds neither: one
+//! that dies costs resends, never a record.
 
 #![warn(missing_docs)]
 
@@ -27,7 +29,6 @@ pub mod join;
 pub mod learner_host;
 pub mod link;
 mod remote;
-mod reports;
 pub mod wire;
 
 pub use actor_host::{ActorHostOptions, run_actor_host};

@@ -13,11 +13,11 @@
 //!   whole window again every few seconds) are dropped and counted — their actor holds
 //!   each until a learner acknowledges it and sends it again when asked; so are
 //!   episode reports beyond [`REPORT_BACKLOG`] (a curriculum service that is gone,
-//!   while the actor host sends its held reports again every two seconds) — their
-//!   actor host holds each until it is acknowledged;
-//! - an episode report is published at most once per worker's life: each worker keeps
-//!   its actor's [`ReportCursor`], whose acknowledgements the bridge sends back
-//!   ([`RemoteActors::report_acks`]), and drops a report that arrives again.
+//!   while the actor sends its held reports again every two seconds) — their actor
+//!   holds each until the curriculum service acknowledges it;
+//! - a worker keeps no record of what it published: a report that comes again is
+//!   published again, and the curriculum service, which acknowledges what it took,
+//!   drops it (`pednav_runtime::reports`).
 
 use std::collections::HashMap;
 use std::sync::atomic::{AtomicUsize, Ordering};
@@ -31,8 +31,7 @@ use zenoh::bytes::ZBytes;
 
 use crate::error::{BridgeError, Result};
 use crate::forward::{Tally, refuse};
-use crate::reports::ReportCursor;
-use crate::wire::{self, ReportAck};
+use crate::wire;
 
 /// A message from the link for one remote actor.
 pub(crate) enum Inbound {
@@ -77,8 +76,6 @@ struct Worker {
     tx: Sender<Inbound>,
     /// What it holds unpublished.
     queued: Arc<Queued>,
-    /// Which of its actor's episode reports it published.
-    reports: Arc<Mutex<ReportCursor>>,
 }
 
 /// The remote actors' workers, started on an actor's first message; shared with the
@@ -116,20 +113,19 @@ impl RemoteActors {
         let worker = workers.entry(actor).or_insert_with(|| {
             let (tx, rx) = mpsc::channel();
             let queued = Arc::new(Queued::default());
-            let reports = Arc::new(Mutex::new(ReportCursor::default()));
             let setup = self.setup.clone();
-            let (counter, cursor) = (queued.clone(), reports.clone());
+            let counter = queued.clone();
             let handle = std::thread::Builder::new()
                 .name(format!("remote-actor-{actor}"))
                 .spawn(move || {
-                    if let Err(e) = run_worker(&setup, actor, &rx, &counter, &cursor) {
+                    if let Err(e) = run_worker(&setup, actor, &rx, &counter) {
                         tracing::error!(actor, "the remote actor's forwarding stopped: {e}");
                     }
                 })
                 .expect("a thread starts");
             self.threads.lock().unwrap_or_else(|p| p.into_inner()).push(handle);
             tracing::info!(actor, "first message from a remote actor");
-            Worker { tx, queued, reports }
+            Worker { tx, queued }
         });
         let (count, bound) = match message {
             Inbound::Step(_) => (&worker.queued.steps, self.setup.backlog),
@@ -143,42 +139,17 @@ impl RemoteActors {
         let _ = worker.tx.send(message);
     }
 
-    /// Every remote actor's episode report acknowledgements, by actor id.
-    pub(crate) fn report_acks(&self) -> Vec<ReportAck> {
-        let workers = self.workers.lock().unwrap_or_else(|p| p.into_inner());
-        report_acks(workers.iter().map(|(&actor, w)| (actor, &w.reports)))
-    }
-
-    /// Close every worker's channel and wait for the threads (after `stop`); the
-    /// acknowledgements of everything they published, to the last report.
-    pub(crate) fn join(&self) -> Vec<ReportAck> {
-        let workers = std::mem::take(&mut *self.workers.lock().unwrap_or_else(|p| p.into_inner()));
-        let cursors: Vec<(u32, Arc<Mutex<ReportCursor>>)> =
-            workers.into_iter().map(|(actor, w)| (actor, w.reports)).collect();
+    /// Close every worker's channel and wait for the threads (after `stop`).
+    pub(crate) fn join(&self) {
+        drop(std::mem::take(&mut *self.workers.lock().unwrap_or_else(|p| p.into_inner())));
         let threads = std::mem::take(&mut *self.threads.lock().unwrap_or_else(|p| p.into_inner()));
         for t in threads {
             let _ = t.join();
         }
-        report_acks(cursors.iter().map(|(actor, c)| (*actor, c)))
     }
 }
 
-/// The acknowledgements of these actors' cursors, by actor id and incarnation.
-fn report_acks<'a>(cursors: impl Iterator<Item = (u32, &'a Arc<Mutex<ReportCursor>>)>) -> Vec<ReportAck> {
-    let mut acks: Vec<ReportAck> = cursors
-        .flat_map(|(actor, c)| c.lock().unwrap_or_else(|p| p.into_inner()).acks(actor).collect::<Vec<_>>())
-        .collect();
-    acks.sort_by_key(|a| (a.actor, a.incarnation));
-    acks
-}
-
-fn run_worker(
-    setup: &WorkerSetup,
-    actor: u32,
-    rx: &Receiver<Inbound>,
-    queued: &Queued,
-    reports: &Mutex<ReportCursor>,
-) -> Result<()> {
+fn run_worker(setup: &WorkerSetup, actor: u32, rx: &Receiver<Inbound>, queued: &Queued) -> Result<()> {
     let ipc = pednav_runtime::Ipc::new(
         &setup.prefix,
         &format!("bridge-actor-{actor}"),
@@ -201,7 +172,7 @@ fn run_worker(
             }
             Inbound::Episode(bytes) => {
                 queued.reports.fetch_sub(1, Ordering::Relaxed);
-                publish_episode(setup, actor, &episodes, reports, &bytes)
+                publish_episode(setup, actor, &episodes, &bytes)
             }
         };
         if let Err(e) = result {
@@ -237,27 +208,14 @@ fn publish_step(setup: &WorkerSetup, actor: u32, steps: &StepSender, bytes: &ZBy
     Ok(())
 }
 
-/// Publish one episode report from the link through the actor's local publisher,
-/// unless it was published before (it came again: its acknowledgement had not reached
-/// the actor host yet).
-fn publish_episode(
-    setup: &WorkerSetup,
-    actor: u32,
-    episodes: &EpisodeSender,
-    reports: &Mutex<ReportCursor>,
-    bytes: &ZBytes,
-) -> Result<()> {
+/// Publish one episode report from the link through the actor's local publisher (the
+/// curriculum service drops one it took before).
+fn publish_episode(setup: &WorkerSetup, actor: u32, episodes: &EpisodeSender, bytes: &ZBytes) -> Result<()> {
     let bytes = bytes.to_bytes();
-    let (header, low_water, points) = wire::decode_episode(&bytes)?;
+    let (header, points) = wire::decode_episode(&bytes)?;
     check_sender(actor, header.actor, "episode report")?;
-    let cursor = || reports.lock().unwrap_or_else(|p| p.into_inner());
-    if !cursor().is_new(header.incarnation, header.seq, low_water) {
-        Tally::add(&setup.tally.duplicate_reports, 1);
-        return Ok(());
-    }
     if points.len() > setup.max_points {
-        // Refused for good: acknowledged, so that it is not sent again.
-        cursor().handled(header.incarnation, header.seq);
+        // The hosts' configs differ (the join refuses that): refused, and counted.
         return Err(BridgeError::Malformed {
             kind: "episode report",
             problem: format!(
@@ -268,10 +226,9 @@ fn publish_episode(
         });
     }
     if episodes.publish(header, &points, &setup.stop, setup.give_up)? {
-        cursor().handled(header.incarnation, header.seq);
         Tally::add(&setup.tally.episode_reports, 1);
     } else {
-        // Not acknowledged: the actor host sends it again.
+        // Not taken, so not acknowledged: its actor sends it again.
         Tally::add(&setup.tally.not_delivered, 1);
     }
     Ok(())

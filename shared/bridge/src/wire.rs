@@ -26,9 +26,10 @@ use pednav_sim::STATE_OBS_DIM;
 
 use crate::error::{BridgeError, Result};
 
-/// The wire version this build reads and writes (2: episode reports carry the
-/// sender's low-water mark and are acknowledged, [`Kind::ReportAcks`]).
-pub const VERSION: u8 = 2;
+/// The wire version this build reads and writes (3: episode reports carry their
+/// actor's low-water mark and are acknowledged by the curriculum service as taken and
+/// as saved, [`Kind::ReportAcks`]).
+pub const VERSION: u8 = 3;
 
 /// What a message is: its first byte.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -48,21 +49,24 @@ pub enum Kind {
     TaskResponse = 6,
     /// A process's [`Heartbeat`].
     Heartbeat = 7,
-    /// The learner host's acknowledgements of episode reports ([`ReportAck`]s).
+    /// The curriculum service's acknowledgements of episode reports ([`ReportAck`]s).
     ReportAcks = 8,
 }
 
 /// One entry of a [`Kind::ReportAcks`] message: every episode report of `actor`'s
-/// incarnation `incarnation` numbered below `next` has been handled (published on
-/// the learner host, or given up by its sender) and need not be sent again.
+/// incarnation `incarnation` numbered below `taken` was taken by the curriculum service
+/// (or given up by its actor) and need not be sent again, and every one below `saved`
+/// is in the service's saved state (its actor may forget it).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct ReportAck {
     /// Global actor id.
     pub actor: u32,
     /// The actor process's incarnation.
     pub incarnation: u32,
-    /// Reports numbered below this are handled.
-    pub next: u64,
+    /// Reports numbered below this were taken.
+    pub taken: u64,
+    /// Reports numbered below this are saved.
+    pub saved: u64,
 }
 
 impl Kind {
@@ -290,16 +294,12 @@ pub fn decode_step(bytes: &[u8]) -> Result<(StepHeader, &[u8])> {
     Ok((h, observation))
 }
 
-/// Where an episode report's low-water mark sits: right after the kind and version
-/// bytes, so a held report is restamped in place before it is sent again.
-const LOW_WATER_AT: usize = 2;
-
-/// An episode report: the sender's low-water mark (the lowest report number of this
-/// actor incarnation it still holds: every report below it was acknowledged or given
-/// up), its header, then its points.
-pub fn encode_episode(h: &EpisodeHeader, low_water: u64, points: &[EpisodePoint]) -> Vec<u8> {
+/// An episode report: its actor's low-water mark ([`EpisodeHeader::low_water`]: the
+/// lowest report number of this actor incarnation it still holds), the rest of its
+/// header, then its points.
+pub fn encode_episode(h: &EpisodeHeader, points: &[EpisodePoint]) -> Vec<u8> {
     let mut e = Enc::new(Kind::Episode, 72 + 16 * points.len());
-    e.u64(low_water);
+    e.u64(h.low_water);
     e.u32(h.actor);
     e.u32(h.env);
     e.u32(h.incarnation);
@@ -318,17 +318,9 @@ pub fn encode_episode(h: &EpisodeHeader, low_water: u64, points: &[EpisodePoint]
     e.0
 }
 
-/// Rewrite the low-water mark of an [`encode_episode`] message in place (a no-op on
-/// bytes too short to be one).
-pub fn restamp_low_water(bytes: &mut [u8], low_water: u64) {
-    if let Some(field) = bytes.get_mut(LOW_WATER_AT..LOW_WATER_AT + 8) {
-        field.copy_from_slice(&low_water.to_le_bytes());
-    }
-}
-
-/// The header, the sender's low-water mark and the points of an [`encode_episode`]
+/// The header (its low-water mark included) and the points of an [`encode_episode`]
 /// message.
-pub fn decode_episode(bytes: &[u8]) -> Result<(EpisodeHeader, u64, Vec<EpisodePoint>)> {
+pub fn decode_episode(bytes: &[u8]) -> Result<(EpisodeHeader, Vec<EpisodePoint>)> {
     let mut d = Dec::open(Kind::Episode, bytes)?;
     let low_water = d.u64("low_water")?;
     let h = EpisodeHeader {
@@ -343,6 +335,7 @@ pub fn decode_episode(bytes: &[u8]) -> Result<(EpisodeHeader, u64, Vec<EpisodePo
         length: d.u32("length")?,
         discounted_return: d.f32("discounted_return")?,
         total_reward: d.f32("total_reward")?,
+        low_water,
     };
     let n = d.count(16, "points")?;
     let mut points = Vec::with_capacity(n);
@@ -351,17 +344,18 @@ pub fn decode_episode(bytes: &[u8]) -> Result<(EpisodeHeader, u64, Vec<EpisodePo
         points.push(EpisodePoint { x, y, yaw, reward });
     }
     d.finish()?;
-    Ok((h, low_water, points))
+    Ok((h, points))
 }
 
 /// The learner host's episode report acknowledgements.
 pub fn encode_report_acks(acks: &[ReportAck]) -> Vec<u8> {
-    let mut e = Enc::new(Kind::ReportAcks, 8 + 16 * acks.len());
+    let mut e = Enc::new(Kind::ReportAcks, 8 + 24 * acks.len());
     e.u64(acks.len() as u64);
     for a in acks {
         e.u32(a.actor);
         e.u32(a.incarnation);
-        e.u64(a.next);
+        e.u64(a.taken);
+        e.u64(a.saved);
     }
     e.0
 }
@@ -369,10 +363,15 @@ pub fn encode_report_acks(acks: &[ReportAck]) -> Vec<u8> {
 /// The entries of an [`encode_report_acks`] message.
 pub fn decode_report_acks(bytes: &[u8]) -> Result<Vec<ReportAck>> {
     let mut d = Dec::open(Kind::ReportAcks, bytes)?;
-    let n = d.count(16, "entries")?;
+    let n = d.count(24, "entries")?;
     let mut acks = Vec::with_capacity(n);
     for _ in 0..n {
-        let a = ReportAck { actor: d.u32("actor")?, incarnation: d.u32("incarnation")?, next: d.u64("next")? };
+        let a = ReportAck {
+            actor: d.u32("actor")?,
+            incarnation: d.u32("incarnation")?,
+            taken: d.u64("taken")?,
+            saved: d.u64("saved")?,
+        };
         if a.actor as usize >= MAX_ACTORS {
             return Err(d.malformed(format!("actor {}: this build has actor ids below {MAX_ACTORS}", a.actor)));
         }
@@ -598,16 +597,13 @@ mod tests {
             let h = EpisodeHeader {
                 actor, env, incarnation, seq, task_id, category,
                 success: flags.0, truncated: flags.1, length: flags.2,
-                discounted_return: rets.0, total_reward: rets.1,
+                discounted_return: rets.0, total_reward: rets.1, low_water,
             };
             let pts: Vec<EpisodePoint> =
                 points.iter().map(|&[x, y, yaw, reward]| EpisodePoint { x, y, yaw, reward }).collect();
-            let mut bytes = encode_episode(&h, low_water, &pts);
-            let (back, back_low, back_pts) = decode_episode(&bytes).unwrap();
-            prop_assert_eq!(back_low, low_water);
-            restamp_low_water(&mut bytes, low_water ^ 0x5a5a);
-            let (again, again_low, _) = decode_episode(&bytes).unwrap();
-            prop_assert_eq!((again_low, again.seq), (low_water ^ 0x5a5a, seq), "restamping changes the mark alone");
+            let bytes = encode_episode(&h, &pts);
+            let (back, back_pts) = decode_episode(&bytes).unwrap();
+            prop_assert_eq!(back.low_water, low_water);
             prop_assert_eq!(
                 (back.actor, back.env, back.incarnation, back.seq, back.task_id, back.category),
                 (actor, env, incarnation, seq, task_id, category)
@@ -635,11 +631,13 @@ mod tests {
         }
 
         #[test]
-        fn report_acks_round_trip(entries in proptest::collection::vec((0..MAX_ACTORS as u32, any::<u32>(), any::<u64>()), 0..40)) {
-            let acks: Vec<ReportAck> =
-                entries.iter().map(|&(actor, incarnation, next)| ReportAck { actor, incarnation, next }).collect();
+        fn report_acks_round_trip(entries in proptest::collection::vec((0..MAX_ACTORS as u32, any::<u32>(), any::<u64>(), any::<u64>()), 0..40)) {
+            let acks: Vec<ReportAck> = entries
+                .iter()
+                .map(|&(actor, incarnation, taken, saved)| ReportAck { actor, incarnation, taken, saved })
+                .collect();
             let bytes = encode_report_acks(&acks);
-            prop_assert_eq!(bytes.len(), 2 + 8 + 16 * acks.len());
+            prop_assert_eq!(bytes.len(), 2 + 8 + 24 * acks.len());
             prop_assert_eq!(decode_report_acks(&bytes).unwrap(), acks);
         }
 
@@ -704,7 +702,7 @@ mod tests {
                     let _ = decode_report_acks(b);
                 }
             }
-            let good = encode_episode(&EpisodeHeader::default(), 0, &[EpisodePoint::default(); 3]);
+            let good = encode_episode(&EpisodeHeader::default(), &[EpisodePoint::default(); 3]);
             let short = &good[..good.len().saturating_sub(cut + 1)];
             prop_assert!(decode_episode(short).is_err());
             let mut long = good.clone();
@@ -753,7 +751,7 @@ mod tests {
 
     #[test]
     fn a_report_ack_for_an_actor_beyond_this_build_is_refused() {
-        let bytes = encode_report_acks(&[ReportAck { actor: MAX_ACTORS as u32, incarnation: 1, next: 3 }]);
+        let bytes = encode_report_acks(&[ReportAck { actor: MAX_ACTORS as u32, incarnation: 1, taken: 3, saved: 2 }]);
         let err = decode_report_acks(&bytes).unwrap_err().to_string();
         assert!(
             err.contains("episode report acknowledgement") && err.contains(&format!("actor {MAX_ACTORS}")),

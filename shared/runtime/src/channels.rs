@@ -5,23 +5,26 @@
 //! [`crate::weights::WeightsClient`].
 //!
 //! Invariants: nothing is sent while nobody is subscribed (records to nobody would be
-//! lost: each end waits for its subscriber first); a step record's observation is
-//! written straight into the loaned shared-memory sample and always in full (a frame
-//! or a state vector of exactly the record's size — checked, never assumed); a stop
-//! request ends every wait and makes a failed send a clean `None`/`false`; a step
-//! record stays with its writer until a learner acknowledges it, so a learner that
-//! restarts is sent again what its predecessor took but never acknowledged.
+//! lost: the step writer waits for its learner first, the episode reporter holds its
+//! reports until someone listens); a step record's observation is written straight
+//! into the loaned shared-memory sample and always in full (a frame or a state vector
+//! of exactly the record's size — checked, never assumed); a stop request ends every
+//! wait and makes a failed send a clean `None`; a step record stays with its writer
+//! until a learner acknowledges it, so a learner that restarts is sent again what its
+//! predecessor took but never acknowledged, and an episode report stays with its
+//! reporter until the curriculum service acknowledges it ([`crate::reports`]).
 
 use std::mem::MaybeUninit;
 use std::time::{Duration, Instant};
 
 use crate::error::{Result, RuntimeError};
-use crate::ipc::{AckSubscriber, EpisodeSender, StepSender, TaskClient};
+use crate::ipc::{AckSubscriber, EpisodeAckSubscriber, EpisodeSender, StepSender, TaskClient};
 use crate::messages::{EpisodeHeader, EpisodePoint, StepHeader, TaskRequest, TaskResponse, state_payload};
 use crate::reliable::SendWindow;
+use crate::reports::{self, HeldReports};
 use crate::{Ipc, StopFlag};
 
-/// How long an actor waits for a learner or curriculum service that is gone
+/// How long an actor waits for a learner that is gone
 /// (the launcher restarts or stops the run well before).
 const WAIT_FOR_SUBSCRIBER: Duration = Duration::from_secs(3600);
 /// A step writer whose window is full and has had no acknowledgement for this long
@@ -308,35 +311,141 @@ impl StepWriter {
     }
 }
 
-/// An actor's episode reports to the curriculum service.
+/// Episode reports an actor holds until the curriculum service saved them, at most
+/// (the service saves every `runtime.curriculum_save_every_episodes` episodes of all
+/// actors; while nobody acknowledges them — a curriculum service or a learner host
+/// that is away — the oldest are given up first, and counted).
+pub const HELD_REPORTS: usize = 1024;
+/// How long a sent report waits for its acknowledgement before it is sent again (the
+/// curriculum service acknowledges within a tenth of a second on one host, the learner
+/// host's bridge every quarter of a second across hosts).
+pub const REPORT_RESEND_AFTER: Duration = Duration::from_secs(2);
+/// Reports sent at most per [`EpisodeReporter::pump`]: a window sent again after a long
+/// absence goes out over several steps, not in one burst.
+const REPORTS_PER_PUMP: usize = 64;
+
+/// What an [`EpisodeReporter`] did.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct ReportCounts {
+    /// Reports made (numbered, held).
+    pub made: u64,
+    /// Reports sent again because no acknowledgement came in time.
+    pub resent: u64,
+    /// Reports dropped unacknowledged to make room in a full window.
+    pub given_up: u64,
+    /// Reports held now (not yet saved by the curriculum service).
+    pub held: u64,
+    /// Of those, reports the curriculum service has not said it took.
+    pub untaken: u64,
+}
+
+/// An actor's episode reports to the curriculum service, lossless end to end: it
+/// numbers each report, holds it until the curriculum service has saved it, and sends
+/// it again when no acknowledgement that it was taken came in time, or when the
+/// service says it lacks it ([`crate::reports`]). It never waits: a report nobody
+/// takes now stays held and goes out at a later [`EpisodeReporter::pump`].
 pub struct EpisodeReporter {
     sender: EpisodeSender,
-    stop: StopFlag,
+    acks: EpisodeAckSubscriber,
+    stream: StreamId,
+    window: HeldReports,
+    counts: ReportCounts,
 }
 
 impl EpisodeReporter {
-    /// The reporter for episodes of at most `max_points` points (T_max + 1).
-    pub fn open(ipc: &Ipc, max_points: usize, stop: StopFlag) -> Result<EpisodeReporter> {
-        Ok(EpisodeReporter { sender: ipc.episode_sender(max_points)?, stop })
+    /// The reporter of `stream`, for episodes of at most `max_points` points (T_max + 1).
+    pub fn open(ipc: &Ipc, stream: StreamId, max_points: usize) -> Result<EpisodeReporter> {
+        Ok(EpisodeReporter {
+            sender: ipc.episode_reporter_sender(max_points)?,
+            acks: ipc.episode_ack_subscriber()?,
+            stream,
+            window: HeldReports::new(HELD_REPORTS),
+            counts: ReportCounts::default(),
+        })
     }
 
-    /// Send one report; `false` when stopping.
-    pub fn send(&self, header: EpisodeHeader, points: &[EpisodePoint]) -> Result<bool> {
-        if self.sender.subscribers() == 0 && !self.sender.wait_for_subscriber(&self.stop, WAIT_FOR_SUBSCRIBER) {
-            return Ok(false);
+    /// What it did so far.
+    pub fn counts(&self) -> ReportCounts {
+        ReportCounts { held: self.window.len() as u64, untaken: self.window.untaken() as u64, ..self.counts }
+    }
+
+    /// Hold one report and send what is due: `header`'s stream, number and low-water
+    /// mark are filled in here.
+    pub fn report(&mut self, mut header: EpisodeHeader, points: &[EpisodePoint]) -> Result<()> {
+        (header.actor, header.incarnation, header.seq) = (self.stream.actor, self.stream.incarnation, self.counts.made);
+        self.counts.made += 1;
+        if self.window.push(header, points.to_vec()) {
+            self.counts.given_up += 1;
+            if self.counts.given_up.is_power_of_two() {
+                tracing::warn!(
+                    given_up = self.counts.given_up,
+                    held = self.window.len(),
+                    "no acknowledgement of episode reports for a long while: the oldest held ones are given up"
+                );
+            }
         }
-        let mut sample = self
-            .sender
-            .publisher
-            .loan_slice_uninit(points.len())
-            .map_err(|e| RuntimeError::Ipc(format!("loan episode report: {e:?}")))?;
-        *sample.user_header_mut() = header;
-        let sample = sample.write_from_slice(points);
-        match sample.send() {
-            Ok(_) => Ok(true),
-            Err(_) if self.stop.is_set() => Ok(false),
-            Err(e) => Err(RuntimeError::Ipc(format!("episode report not delivered: {e:?}"))),
+        self.pump()
+    }
+
+    /// Apply the curriculum service's newest acknowledgement (forget what it saved),
+    /// and send every held report that is due (new, sent [`REPORT_RESEND_AFTER`] ago
+    /// without word that it was taken, or one the service says it lacks after a
+    /// restart). Cheap when there is nothing to do: call it once per step.
+    pub fn pump(&mut self) -> Result<()> {
+        let mut newest = None;
+        loop {
+            match self.acks.receive() {
+                Ok(Some(table)) => {
+                    newest = Some(reports::acknowledged(table.payload(), self.stream.actor, self.stream.incarnation));
+                }
+                Ok(None) => break,
+                Err(e) => return Err(RuntimeError::Ipc(format!("episode ack subscriber: {e:?}"))),
+            }
         }
+        if let Some((taken, saved)) = newest {
+            self.window.acknowledge(taken, saved);
+        }
+        let now = Instant::now();
+        if !self.window.any_due(now, REPORT_RESEND_AFTER) {
+            return Ok(());
+        }
+        if self.sender.subscribers() == 0 {
+            // Nobody takes reports now (a curriculum service or a bridge restarting):
+            // they stay held (a send connects to a new subscriber by itself).
+            return Ok(());
+        }
+        let publisher = &self.sender.publisher;
+        let mut failed = None;
+        let (_, again) = self.window.send_due(now, REPORT_RESEND_AFTER, REPORTS_PER_PUMP, |header, points| {
+            let mut sample = match publisher.loan_slice_uninit(points.len()) {
+                Ok(s) => s,
+                Err(e) => {
+                    failed = Some(RuntimeError::Ipc(format!("loan episode report: {e:?}")));
+                    return false;
+                }
+            };
+            *sample.user_header_mut() = *header;
+            // A full receiver does not take it (never waited for): held, sent again later.
+            sample.write_from_slice(points).send().is_ok()
+        });
+        self.counts.resent += again as u64;
+        match failed {
+            Some(e) => Err(e),
+            None => Ok(()),
+        }
+    }
+
+    /// At the actor's end: send what is due and wait up to `wait` for word that the
+    /// curriculum service took every held report, while a receiver is there (saving
+    /// them is the service's, at its next save or when it stops); returns how many it
+    /// has not said it took.
+    pub fn flush(&mut self, wait: Duration) -> Result<usize> {
+        let started = Instant::now();
+        while self.window.untaken() > 0 && started.elapsed() < wait && self.sender.subscribers() > 0 {
+            self.pump()?;
+            std::thread::sleep(Duration::from_millis(10));
+        }
+        Ok(self.window.untaken())
     }
 }
 

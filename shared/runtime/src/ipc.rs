@@ -7,7 +7,9 @@
 //! - the step and episode streams are lossless: safe overflow off and
 //!   `RetryUntilDelivered`, with a bounded give-up (the publisher stops retrying
 //!   once [`Ipc::give_up`] has passed or the process was asked to stop), so a dead
-//!   learner cannot wedge an actor forever;
+//!   learner cannot wedge an actor forever — except an actor's own episode reporter,
+//!   which never waits (it holds its reports until they are acknowledged and sends
+//!   again what a full receiver did not take, [`crate::reports`]);
 //! - the learner's intake is fair across actors ([`receive_step_round`]): no
 //!   actor waits on its full queue while another's is served;
 //! - weights, acknowledgements and heartbeats are lossy by design (newest wins;
@@ -31,7 +33,8 @@ use iceoryx2::prelude::*;
 
 use crate::error::{Result, RuntimeError};
 use crate::messages::{
-    AckTable, EpisodeHeader, EpisodePoint, Heartbeat, StepHeader, TaskRequest, TaskResponse, WeightsHeader,
+    AckTable, EpisodeAckTable, EpisodeHeader, EpisodePoint, Heartbeat, StepHeader, TaskRequest, TaskResponse,
+    WeightsHeader,
 };
 use crate::signal::StopFlag;
 
@@ -64,6 +67,12 @@ pub type HeartbeatSubscriber = Subscriber<ipc::Service, Heartbeat, ()>;
 pub type AckPublisher = Publisher<ipc::Service, AckTable, ()>;
 /// An actor's view of the learner's acknowledgements.
 pub type AckSubscriber = Subscriber<ipc::Service, AckTable, ()>;
+
+/// The curriculum service's episode-report acknowledgements publisher (an actor
+/// host's bridge publishes the learner host's there).
+pub type EpisodeAckPublisher = Publisher<ipc::Service, EpisodeAckTable, ()>;
+/// An actor's view of the episode-report acknowledgements.
+pub type EpisodeAckSubscriber = Subscriber<ipc::Service, EpisodeAckTable, ()>;
 
 /// A received step record, borrowed from the sending actor's shared memory until dropped.
 pub type StepSample = iceoryx2::sample::Sample<ipc::Service, [u8], StepHeader>;
@@ -282,17 +291,34 @@ impl Ipc {
             .map_err(|e| ipc_err("episode service", e))
     }
 
-    /// An actor's episode-report publisher (reports of up to `max_points` points).
+    /// An episode-report publisher that waits for room in a full receiver, as a step
+    /// sender does (reports of up to `max_points` points): the learner host's stand-in
+    /// for a remote actor, which holds nothing itself.
     pub fn episode_sender(&self, max_points: usize) -> Result<EpisodeSender> {
+        self.episode_publisher(max_points, true)
+    }
+
+    /// An actor's episode-report publisher, which never waits: a report a full
+    /// receiver cannot take is not delivered, and its actor, which holds every report
+    /// until the curriculum service acknowledges it, sends it again
+    /// ([`crate::channels::EpisodeReporter`]).
+    pub fn episode_reporter_sender(&self, max_points: usize) -> Result<EpisodeSender> {
+        self.episode_publisher(max_points, false)
+    }
+
+    /// An episode-report publisher that `waits` for room in a full receiver (up to the
+    /// give-up), or drops what a full receiver cannot take.
+    fn episode_publisher(&self, max_points: usize, waits: bool) -> Result<EpisodeSender> {
         let service = self.episode_service()?;
-        let publisher = service
-            .publisher_builder()
-            .initial_max_slice_len(max_points)
-            .max_loaned_samples(2)
-            .backpressure_strategy(BackpressureStrategy::RetryUntilDelivered)
-            .set_backpressure_handler(self.lossless_handler())
-            .create()
-            .map_err(|e| ipc_err("episode publisher", e))?;
+        let builder = service.publisher_builder().initial_max_slice_len(max_points).max_loaned_samples(2);
+        let builder = if waits {
+            builder
+                .backpressure_strategy(BackpressureStrategy::RetryUntilDelivered)
+                .set_backpressure_handler(self.lossless_handler())
+        } else {
+            builder.backpressure_strategy(BackpressureStrategy::DiscardData)
+        };
+        let publisher = builder.create().map_err(|e| ipc_err("episode publisher", e))?;
         Ok(LosslessSender { publisher, service })
     }
 
@@ -360,12 +386,16 @@ impl Ipc {
         self.weights_service()?.subscriber_builder().create().map_err(|e| ipc_err("weights subscriber", e))
     }
 
-    fn ack_service(
+    /// A service of tables where the newest wins (acknowledgements): safe overflow on,
+    /// history 1 so a late subscriber gets the current table, a buffer of 1, one
+    /// publisher and a restarting one's successor.
+    fn newest_wins_service<T: std::fmt::Debug + ZeroCopySend + 'static>(
         &self,
-    ) -> Result<iceoryx2::service::port_factory::publish_subscribe::PortFactory<ipc::Service, AckTable, ()>> {
+        name: &str,
+    ) -> Result<iceoryx2::service::port_factory::publish_subscribe::PortFactory<ipc::Service, T, ()>> {
         self.node
-            .service_builder(&service_name("pednav/acks")?)
-            .publish_subscribe::<AckTable>()
+            .service_builder(&service_name(name)?)
+            .publish_subscribe::<T>()
             .enable_safe_overflow(true)
             .history_size(1)
             .subscriber_max_buffer_size(1)
@@ -373,7 +403,13 @@ impl Ipc {
             .max_subscribers(MAX_ACTORS + 2)
             .max_nodes(MAX_ACTORS + 4)
             .open_or_create()
-            .map_err(|e| ipc_err("ack service", e))
+            .map_err(|e| ipc_err(name, e))
+    }
+
+    fn ack_service(
+        &self,
+    ) -> Result<iceoryx2::service::port_factory::publish_subscribe::PortFactory<ipc::Service, AckTable, ()>> {
+        self.newest_wins_service("pednav/acks")
     }
 
     /// The learner's acknowledgements publisher.
@@ -384,6 +420,25 @@ impl Ipc {
     /// An actor's subscriber to the learner's acknowledgements.
     pub fn ack_subscriber(&self) -> Result<AckSubscriber> {
         self.ack_service()?.subscriber_builder().create().map_err(|e| ipc_err("ack subscriber", e))
+    }
+
+    fn episode_ack_service(
+        &self,
+    ) -> Result<iceoryx2::service::port_factory::publish_subscribe::PortFactory<ipc::Service, EpisodeAckTable, ()>>
+    {
+        self.newest_wins_service("pednav/episode-acks")
+    }
+
+    /// The curriculum service's (or an actor host bridge's) episode-report
+    /// acknowledgements publisher.
+    pub fn episode_ack_publisher(&self) -> Result<EpisodeAckPublisher> {
+        self.episode_ack_service()?.publisher_builder().create().map_err(|e| ipc_err("episode ack publisher", e))
+    }
+
+    /// A subscriber to the episode-report acknowledgements (an actor; the learner
+    /// host's bridge, which forwards the remote actors' entries).
+    pub fn episode_ack_subscriber(&self) -> Result<EpisodeAckSubscriber> {
+        self.episode_ack_service()?.subscriber_builder().create().map_err(|e| ipc_err("episode ack subscriber", e))
     }
 
     fn heartbeat_service(

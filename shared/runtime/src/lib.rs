@@ -14,7 +14,9 @@
 //! - [`metrics`]: CSV + TensorBoard scalars, whose columns [`columns`] names once;
 //! - [`weights`]: the flat weights message;
 //! - [`reliable`]: sequence numbers, acknowledgements and resends that make a step
-//!   stream lossless across a restarted learner (and, later, a cut link);
+//!   stream lossless across a restarted learner and a cut link;
+//! - [`reports`]: episode reports held by their actor until the curriculum service
+//!   acknowledges them, taken once however often they arrive;
 //! - [`signal`]: Ctrl-C / SIGTERM as a flag;
 //! - [`stats`]: the stats files each process writes and the soak and tests read;
 //! - [`write_health`]: writes that failed (a full disk), logged once per interval and
@@ -34,6 +36,7 @@ pub mod memory;
 pub mod messages;
 pub mod metrics;
 pub mod reliable;
+pub mod reports;
 pub mod rundir;
 pub mod signal;
 pub mod stats;

@@ -43,10 +43,11 @@
 use pednav_config::ReplayFootprint;
 use pednav_nets::{DeviceSpec, DsacNets, EncoderKind};
 
+use crate::channels::HELD_REPORTS;
 use crate::config::RunConfig;
 use crate::error::{Result, RuntimeError};
 use crate::ipc::STEP_ROUND_PER_ACTOR;
-use crate::messages::StepHeader;
+use crate::messages::{EpisodePoint, StepHeader};
 
 /// The share of the machine's memory a run may be estimated to need: the kernel, the
 /// page cache and the rest of the machine keep the remainder.
@@ -379,22 +380,31 @@ impl RunConfig {
         });
 
         // Actors: measured renderer/simulator constants plus the acting networks
-        // (weights and a copy being loaded).
+        // (weights and a copy being loaded) and a full window of episode reports held
+        // for the curriculum service (at most HELD_REPORTS of T_max + 1 points).
         let acting: usize = nets.acting_stores().iter().map(|s| s.num_scalars()).sum();
-        let per_actor =
-            ACTOR_BASE_BYTES as u128 + plan.envs_per_actor as u128 * ACTOR_ENV_BYTES as u128 + acting as u128 * 8;
+        let reports = (HELD_REPORTS * (self.sim.t_max as usize + 1) * std::mem::size_of::<EpisodePoint>()) as u128;
+        let per_actor = ACTOR_BASE_BYTES as u128
+            + plan.envs_per_actor as u128 * ACTOR_ENV_BYTES as u128
+            + acting as u128 * 8
+            + reports;
         items.push(MemoryItem {
             part: MemoryPart::Actors,
             what: "actors",
             how: format!(
-                "{} × ({} renderer and simulator + {} envs × {} + acting network {}; renderer and env sizes measured)",
+                "{} × ({} renderer and simulator + {} envs × {} + acting network {} + episode reports held {}; \
+                 renderer and env sizes measured)",
                 plan.actors,
                 human(ACTOR_BASE_BYTES as u128),
                 plan.envs_per_actor,
                 human(ACTOR_ENV_BYTES as u128),
-                human(acting as u128 * 8)
+                human(acting as u128 * 8),
+                human(reports)
             ),
-            fields: format!("--actors {}, runtime.envs_per_actor = {}", plan.actors, plan.envs_per_actor),
+            fields: format!(
+                "--actors {}, runtime.envs_per_actor = {}, sim.t_max = {}",
+                plan.actors, plan.envs_per_actor, self.sim.t_max
+            ),
             bytes: plan.actors as u128 * per_actor,
             on_host: true,
             per_item: 0,

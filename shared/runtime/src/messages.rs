@@ -198,9 +198,12 @@ pub struct EpisodeHeader {
     /// Incarnation of the actor process (as in [`StepHeader::incarnation`]).
     pub incarnation: u32,
     /// Running number of this actor incarnation's episode reports (0, 1, 2, …): with
-    /// `actor` and `incarnation` it names a report across hosts, so a resent one is
-    /// known as such.
+    /// `actor` and `incarnation` it names a report, so a resent one is known as such.
     pub seq: u64,
+    /// The sender's low-water mark: the lowest report number of this actor incarnation
+    /// it still holds (every one below was acknowledged, or given up for room), so the
+    /// receiver never waits for a report that will not come ([`crate::reports`]).
+    pub low_water: u64,
 }
 
 /// One point of an episode: the pose reached and the reward of the step that led there.
@@ -280,6 +283,42 @@ pub struct AckTable {
 impl Default for AckTable {
     fn default() -> Self {
         AckTable { streams: [StreamAck::default(); MAX_ACTORS] }
+    }
+}
+
+/// One actor's entry in the curriculum service's [`EpisodeAckTable`].
+#[repr(C)]
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, ZeroCopySend)]
+pub struct EpisodeAck {
+    /// The actor incarnation the entry is for (0: none reported yet; incarnations
+    /// start at 1).
+    pub incarnation: u32,
+    /// Unused (keeps the counters aligned on every layout).
+    pub reserved: u32,
+    /// Every report of that incarnation numbered below this was taken (it is in the
+    /// service's memory: not to be sent again unless this number goes back, which
+    /// says the service restarted without it).
+    pub taken: u64,
+    /// Every report of that incarnation numbered below this is in the service's saved
+    /// state (its actor may forget it).
+    pub saved: u64,
+}
+
+/// The curriculum service's acknowledgements of every actor's episode reports,
+/// indexed by actor id (an actor's newest incarnation). Newest wins, as the
+/// [`AckTable`] of step records: each table replaces the last; an actor stops sending
+/// the reports it holds below its entry's `taken` and forgets those below `saved`
+/// ([`crate::reports`]).
+#[repr(C)]
+#[derive(Debug, Clone, Copy, PartialEq, ZeroCopySend)]
+pub struct EpisodeAckTable {
+    /// Entry `k` is actor `k`'s.
+    pub actors: [EpisodeAck; MAX_ACTORS],
+}
+
+impl Default for EpisodeAckTable {
+    fn default() -> Self {
+        EpisodeAckTable { actors: [EpisodeAck::default(); MAX_ACTORS] }
     }
 }
 

@@ -108,6 +108,18 @@ pub struct ActorStats {
     /// sent everything it held again unasked.
     #[serde(default)]
     pub resend_timeouts: u64,
+    /// Episode reports sent again because word that they were taken did not come in
+    /// time (a curriculum service, bridge or link that was away), or because a
+    /// restarted curriculum service said it lacked them.
+    #[serde(default)]
+    pub reports_resent: u64,
+    /// Episode reports given up unacknowledged to make room in the actor's window.
+    #[serde(default)]
+    pub reports_given_up: u64,
+    /// Episode reports the curriculum service has not said it took (at the end: sent
+    /// to nobody who confirmed it).
+    #[serde(default)]
+    pub reports_unacknowledged: u64,
 }
 
 /// Jumps a [`StreamTally`] keeps the ranges of (the first ones; `resumed` counts all).
@@ -178,6 +190,20 @@ pub struct GateOpened {
     pub decision_steps: u64,
 }
 
+/// How many episode reports of one actor incarnation the curriculum service holds:
+/// every one numbered below `taken` (its actor made `episodes` reports; equal when
+/// none was lost).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ReportsTaken {
+    /// Actor id.
+    pub actor: u32,
+    /// The actor's incarnation.
+    pub incarnation: u32,
+    /// Every report of that incarnation numbered below this was taken.
+    pub taken: u64,
+}
+
 /// The curriculum service (written when it stops).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -196,6 +222,14 @@ pub struct CurriculumStats {
     pub acl_phase: bool,
     /// When this process saw the gate open (`None` if it opened before a resume, or has not).
     pub first_task_passed: Option<GateOpened>,
+    /// Episode reports this process received again after it had taken them (their
+    /// acknowledgement had not reached the actor yet): dropped, not counted twice.
+    #[serde(default)]
+    pub duplicate_reports: u64,
+    /// The reports it holds, per actor incarnation (the newest 64 of each actor), as
+    /// saved with its state: a restored service's include what its predecessors took.
+    #[serde(default)]
+    pub reports_taken: Vec<ReportsTaken>,
 }
 
 /// The stats name of actor `actor`'s running incarnation: `actor-K.live`.

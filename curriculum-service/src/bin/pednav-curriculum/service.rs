@@ -3,11 +3,17 @@
 //! loops over [`CurriculumService::step`] — answer task requests, take episode
 //! reports, log — until stopped, then saves the state.
 //!
-//! Invariant: the saved state (`checkpoints/curriculum.json`, and a snapshot every
-//! 500 episodes) holds the curriculum, the next task id, the per-category counts and
-//! the decision steps together, so a restart resumes all of them. A save that fails
-//! (a full disk) leaves the last good state on disk; the service keeps serving from
-//! memory, says so once per interval, and saves again after the next episodes.
+//! Invariants: the saved state (`checkpoints/curriculum.json`, and a snapshot every
+//! 500 episodes) holds the curriculum, the next task id, the per-category counts, the
+//! decision steps and which episode reports were taken together, so a restart resumes
+//! all of them. A save that fails (a full disk) leaves the last good state on disk;
+//! the service keeps serving from memory, says so once per interval, and saves again
+//! after the next episodes. Every episode report is taken at most once, by (actor,
+//! incarnation, seq), acknowledged as taken at once and as saved once the state on
+//! disk holds it ([`pednav_runtime::reports`]): its actor holds it until then, so a
+//! report that was on its way when this service (or a bridge between hosts) died is
+//! sent again, and so is every report a service killed between two saves took after
+//! the last one — the restored service lacks it, says so, and takes it again.
 
 use std::collections::{BTreeMap, VecDeque};
 use std::path::Path;
@@ -15,9 +21,10 @@ use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result};
 use pednav_curriculum::{Category, Curriculum, CurriculumError, EpisodeOutcome, Fit, ServiceState};
-use pednav_runtime::ipc::{EpisodeSubscriber, HeartbeatPublisher, TaskServer};
+use pednav_runtime::ipc::{EpisodeAckPublisher, EpisodeSubscriber, HeartbeatPublisher, TaskServer};
 use pednav_runtime::messages::{EpisodeHeader, Faults, Heartbeat, ProcessKind, TaskResponse};
-use pednav_runtime::stats::{CurriculumStats, GateOpened};
+use pednav_runtime::reports::ReportCursors;
+use pednav_runtime::stats::{CurriculumStats, GateOpened, ReportsTaken};
 use pednav_runtime::write_health::WriteHealth;
 use pednav_runtime::{AppendFile, Ipc, Metrics, RunConfig, RunDir, StopFlag, columns, run_prefix};
 use pednav_sim::{Pose, Scene};
@@ -25,6 +32,10 @@ use pednav_sim::{Pose, Scene};
 /// Reported episodes between two saved snapshots of the curriculum state
 /// (`checkpoints/curriculum-snapshots/`, what `pednav-plot curriculum` draws over time).
 const SNAPSHOT_EVERY_EPISODES: u64 = 500;
+
+/// How often the episode-report acknowledgements are published at most (after new
+/// reports, or ones that came again).
+const ACKS_EVERY: Duration = Duration::from_millis(100);
 
 /// One row per reported episode: `metrics/episodes.csv` (rows the disk does not
 /// take wait in memory, [`AppendFile`]).
@@ -77,11 +88,22 @@ pub struct CurriculumService {
     decision_steps: u64,
     /// When this process saw the PassFirstTask gate open: (episodes, decision steps).
     first_task_passed: Option<(u64, u64)>,
+    /// Which reports of every actor were taken (saved with the state).
+    report_cursors: ReportCursors,
+    /// Which reports the newest state on disk holds (an actor forgets those).
+    saved_cursors: ReportCursors,
+    /// Reports that came again after they were taken (dropped).
+    duplicate_reports: u64,
+    /// Whether reports came since the acknowledgements were last published, and when
+    /// that was.
+    acks_due: bool,
+    last_acks: Instant,
     episode_log: EpisodeLog,
     // Kept alive for the ports below.
     _ipc: Ipc,
     server: TaskServer,
     reports: EpisodeSubscriber,
+    report_acks: EpisodeAckPublisher,
     heartbeat: HeartbeatPublisher,
     metrics: Metrics,
     last_fit: Option<Fit>,
@@ -101,7 +123,7 @@ impl CurriculumService {
     pub fn open(dir: RunDir, stop: StopFlag) -> Result<CurriculumService> {
         let cfg = dir.load_config()?;
         let (curriculum, saved) = load_curriculum(&dir.curriculum_state(), &cfg, cfg.scene()?)?;
-        let (next_task_id, proposed, decision_steps) = match saved {
+        let (next_task_id, proposed, decision_steps, report_cursors) = match saved {
             Some(s) => {
                 tracing::info!(
                     episodes = curriculum.episodes(),
@@ -109,9 +131,9 @@ impl CurriculumService {
                     acl = curriculum.scheduler().in_acl_phase(),
                     "resumed curriculum state"
                 );
-                (s.next_task_id, s.proposed, s.decision_steps)
+                (s.next_task_id, s.proposed, s.decision_steps, s.report_cursors)
             }
-            None => (1, BTreeMap::new(), 0),
+            None => (1, BTreeMap::new(), 0, ReportCursors::default()),
         };
         std::fs::create_dir_all(dir.curriculum_snapshots())?;
         let ipc = Ipc::new(
@@ -123,6 +145,7 @@ impl CurriculumService {
         )?;
         let server = ipc.task_server()?;
         let reports = ipc.episode_subscriber()?;
+        let report_acks = ipc.episode_ack_publisher()?;
         let heartbeat = ipc.heartbeat_publisher()?;
         let metrics = Metrics::open(&dir.metrics(), &dir.tb(), "curriculum")?;
         let episode_log = EpisodeLog::open(&dir)?;
@@ -138,10 +161,19 @@ impl CurriculumService {
             proposed,
             decision_steps,
             first_task_passed: None,
+            // The first acknowledgements go out at once: a resumed service's say what its
+            // state holds (the actors forget those, and send again what it lacks), a
+            // fresh one's that it holds nothing.
+            acks_due: true,
+            saved_cursors: report_cursors.clone(),
+            report_cursors,
+            duplicate_reports: 0,
+            last_acks: Instant::now(),
             episode_log,
             _ipc: ipc,
             server,
             reports,
+            report_acks,
             heartbeat,
             metrics,
             last_fit: None,
@@ -164,6 +196,8 @@ impl CurriculumService {
         // The last (partial) interval gets its metrics row too.
         self.log_interval()?;
         self.final_save()?;
+        // The last acknowledgements, after the state that holds their reports is saved.
+        self.publish_acks();
         let c = &self.curriculum;
         self.dir.write_stats(
             "curriculum",
@@ -177,6 +211,12 @@ impl CurriculumService {
                 first_task_passed: self
                     .first_task_passed
                     .map(|(episodes, decision_steps)| GateOpened { episodes, decision_steps }),
+                duplicate_reports: self.duplicate_reports,
+                reports_taken: self
+                    .report_cursors
+                    .streams()
+                    .map(|(actor, incarnation, taken)| ReportsTaken { actor, incarnation, taken })
+                    .collect(),
             },
         )?;
         tracing::info!(episodes = c.episodes(), "curriculum service stopped; state saved");
@@ -188,6 +228,9 @@ impl CurriculumService {
     pub fn step(&mut self) -> Result<bool> {
         let mut busy = self.answer_requests()?;
         busy |= self.take_reports()?;
+        if self.acks_due && self.last_acks.elapsed() >= ACKS_EVERY {
+            self.publish_acks();
+        }
         if self.last_log.elapsed().as_secs_f64() >= self.cfg.runtime.metrics_every_secs {
             self.last_log = Instant::now();
             self.log_interval()?;
@@ -219,31 +262,57 @@ impl CurriculumService {
         Ok(busy)
     }
 
+    /// Publish which reports were taken and which are saved: every actor stops
+    /// sending the ones it holds below its entry's `taken` and forgets those below
+    /// `saved` (a lost table is replaced by the next: reports keep coming, or come
+    /// again, and each makes a new one due, as does every save).
+    fn publish_acks(&mut self) {
+        self.acks_due = false;
+        self.last_acks = Instant::now();
+        if let Err(e) = self.report_acks.send_copy(self.report_cursors.table(&self.saved_cursors)) {
+            tracing::warn!("episode report acknowledgements not published (sent again after the next report): {e:?}");
+        }
+    }
+
+    /// Take every waiting episode report once: one that comes again (its actor had
+    /// not heard of it yet) is dropped and acknowledged again.
     fn take_reports(&mut self) -> Result<bool> {
         let mut busy = false;
         while let Some(sample) = self.reports.receive().map_err(|e| anyhow::anyhow!("episode subscriber: {e:?}"))? {
             busy = true;
+            self.acks_due = true;
             let h = *sample.user_header();
+            if !self.report_cursors.is_new(&h) {
+                self.duplicate_reports += 1;
+                continue;
+            }
             let points = sample.payload();
-            if points.len() != h.length as usize + 1 {
+            let category = category_of(h.category);
+            if points.len() != h.length as usize + 1 || category.is_err() {
                 tracing::warn!(
                     actor = h.actor,
                     env = h.env,
-                    "episode report with {} points for {} steps: ignored",
+                    category = h.category,
+                    "episode report with {} points for {} steps, or of an unknown category: ignored",
                     points.len(),
                     h.length
                 );
+                // Refused for good: acknowledged, so that it is not sent again.
+                self.report_cursors.handled(&h);
                 continue;
             }
             let start = Pose { x: points[0].x, y: points[0].y, yaw: points[0].yaw };
             let outcome = EpisodeOutcome {
-                category: category_of(h.category)?,
+                category: category?,
                 poses: points.iter().map(|p| Pose { x: p.x, y: p.y, yaw: p.yaw }).collect(),
                 rewards: points[1..].iter().map(|p| p.reward).collect(),
                 truncated: h.truncated != 0,
                 success: h.success != 0,
             };
             drop(sample);
+            // Taken before it is recorded: a save inside `record` holds the report and
+            // the cursor that says so together.
+            self.report_cursors.handled(&h);
             self.record(&h, start, &outcome)?;
         }
         Ok(busy)
@@ -286,6 +355,7 @@ impl CurriculumService {
             let outcome = self.save(&self.dir.curriculum_state());
             if outcome.is_ok() {
                 self.last_good = Some(episodes);
+                self.saved(self.report_cursors.clone());
             }
             self.record_save(
                 "curriculum state",
@@ -296,6 +366,13 @@ impl CurriculumService {
             self.since_save = 0;
         }
         Ok(())
+    }
+
+    /// The state on disk now holds the reports of `cursors`: their actors may forget
+    /// them (said with the next acknowledgements).
+    fn saved(&mut self, cursors: ReportCursors) {
+        self.saved_cursors = cursors;
+        self.acks_due = true;
     }
 
     /// Log a failed save once per interval (it is retried at the next one), or its recovery.
@@ -321,7 +398,10 @@ impl CurriculumService {
     fn final_save(&mut self) -> Result<()> {
         for attempt in 1..=3 {
             match self.save(&self.dir.curriculum_state()) {
-                Ok(()) => return Ok(()),
+                Ok(()) => {
+                    self.saved(self.report_cursors.clone());
+                    return Ok(());
+                }
                 Err(e) if attempt < 3 => {
                     tracing::warn!(
                         "final curriculum state FAILED (attempt {attempt} of 3): {e:#}; trying again in 2 s"
@@ -393,6 +473,7 @@ impl CurriculumService {
             next_task_id: self.next_task_id,
             proposed: self.proposed.clone(),
             decision_steps: self.decision_steps,
+            report_cursors: self.report_cursors.clone(),
         };
         Ok(state.save(path)?)
     }
