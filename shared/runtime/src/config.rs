@@ -15,6 +15,7 @@ use pednav_nets::{DeviceSpec, EncoderKind, NetsConfig};
 use pednav_sim::{ObsMode, STATE_OBS_DIM, Scene, SimConfig};
 use serde::{Deserialize, Serialize};
 
+use crate::channels::HELD_REPORTS;
 use crate::error::{Result, RuntimeError};
 
 /// How actors choose actions.
@@ -46,7 +47,8 @@ pub struct RuntimeConfig {
     pub checkpoint_every_updates: u64,
     /// Also write a learner checkpoint when this many seconds passed since the last.
     pub checkpoint_every_secs: f64,
-    /// Save the curriculum state every this many episode reports (and on stop).
+    /// Save the curriculum state every this many episode reports (and on stop); at
+    /// most 1,024: each actor holds its reports until a save holds them, 1,024 at most.
     pub curriculum_save_every_episodes: u64,
     /// Write a metrics row (CSV + TensorBoard) every this many seconds, and a last one at stop.
     pub metrics_every_secs: f64,
@@ -269,8 +271,15 @@ impl RunConfig {
         if r.checkpoint_every_updates == 0 {
             return bad("runtime.checkpoint_every_updates", "0".into(), "must be at least 1");
         }
-        if r.curriculum_save_every_episodes == 0 {
-            return bad("runtime.curriculum_save_every_episodes", "0".into(), "must be at least 1");
+        if r.curriculum_save_every_episodes == 0 || r.curriculum_save_every_episodes > HELD_REPORTS as u64 {
+            return bad(
+                "runtime.curriculum_save_every_episodes",
+                r.curriculum_save_every_episodes.to_string(),
+                &format!(
+                    "must be 1 … {HELD_REPORTS}: each actor holds its episode reports until a saved curriculum state \
+                     holds them, {HELD_REPORTS} at most"
+                ),
+            );
         }
         for (field, v) in [
             ("runtime.checkpoint_every_secs", r.checkpoint_every_secs),
@@ -414,6 +423,14 @@ mod tests {
         cfg.runtime.envs_per_actor = 0;
         let e = cfg.validate("x.toml").unwrap_err().to_string();
         assert!(e.contains("runtime.envs_per_actor"), "{e}");
+        // More reports between two saves than an actor can hold.
+        let mut cfg = RunConfig::default();
+        cfg.runtime.curriculum_save_every_episodes = 5_000;
+        let e = cfg.validate("x.toml").unwrap_err().to_string();
+        assert!(
+            e.contains("runtime.curriculum_save_every_episodes") && e.contains("5000") && e.contains("1024"),
+            "{e}"
+        );
         let mut cfg = RunConfig::default();
         cfg.dsac.warmup = 10;
         let e = cfg.validate("x").unwrap_err().to_string();
