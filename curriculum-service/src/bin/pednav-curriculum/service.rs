@@ -355,7 +355,7 @@ impl CurriculumService {
             let outcome = self.save(&self.dir.curriculum_state());
             if outcome.is_ok() {
                 self.last_good = Some(episodes);
-                self.saved(self.report_cursors.clone());
+                self.saved();
             }
             self.record_save(
                 "curriculum state",
@@ -368,10 +368,10 @@ impl CurriculumService {
         Ok(())
     }
 
-    /// The state on disk now holds the reports of `cursors`: their actors may forget
+    /// The state on disk now holds every report taken so far: their actors may forget
     /// them (said with the next acknowledgements).
-    fn saved(&mut self, cursors: ReportCursors) {
-        self.saved_cursors = cursors;
+    fn saved(&mut self) {
+        self.saved_cursors = self.report_cursors.clone();
         self.acks_due = true;
     }
 
@@ -399,7 +399,7 @@ impl CurriculumService {
         for attempt in 1..=3 {
             match self.save(&self.dir.curriculum_state()) {
                 Ok(()) => {
-                    self.saved(self.report_cursors.clone());
+                    self.saved();
                     return Ok(());
                 }
                 Err(e) if attempt < 3 => {
