@@ -192,3 +192,22 @@ fn a_committed_result_is_re_evaluated_from_its_kept_checkpoint() {
     }
     assert_eq!(rows.iter().filter(|r| r[0] != "mean").count(), 2, "{rows:?}");
 }
+
+#[test]
+fn the_table_of_committed_runs_gives_mean_sample_std_and_success_to_a_tenth() {
+    // Three committed 1 M runs: their Avg.Int / Avg.Ext (−17.6 / −26.4, −16.8 / −25.2,
+    // −21.1 / −43.3) give −18.5 ± 2.3 / −31.7 ± 10.1 (sample std), and 3,209 of 3,360
+    // episodes reached the goal: 95.5 %, which whole percents would show as 96 %, above a
+    // 95 % bar it only just meets.
+    let dir = workspace_root().join("docs/results/recipe-enlarged-1m");
+    let runs: Vec<String> = (1..=3).map(|s| dir.join(format!("s{s}")).display().to_string()).collect();
+    let out = scratch_dir("plot-table").join("table.md");
+    ok(Command::new(binary("pednav-experiments", "shared/experiments", "pednav-plot"))
+        .args(["table", "--group", &format!("enlarged={}", runs.join(","))])
+        .args(["--random", workspace_root().join("docs/results/cpu-state/eval-random").to_str().unwrap()])
+        .args(["--out", out.to_str().unwrap()]));
+    let table = std::fs::read_to_string(&out).unwrap();
+    let row = table.lines().find(|l| l.starts_with("| enlarged |")).unwrap_or_else(|| panic!("{table}"));
+    assert!(row.starts_with("| enlarged | 3 | -18.5 ± 2.3 | -31.7 ± 10.1 | 95.5 % | 0.95 | 0.93 |"), "{row}");
+    assert!(table.contains("| random walk | — | -230.6 | -246.4 | 49.7 % |"), "{table}");
+}

@@ -392,7 +392,7 @@ fn table(groups: &[String], random: Option<&Path>) -> Result<String> {
         let per_run: Vec<String> = evals.iter().map(|e| format!("{:.1} / {:.1}", e.avg_int, e.avg_ext)).collect();
         let _ = writeln!(
             s,
-            "| {label} | {} | {} | {} | {:.0} % | {} | {} | {} |",
+            "| {label} | {} | {} | {} | {:.1} % | {} | {} | {} |",
             evals.len(),
             pm(&ints),
             pm(&exts),
@@ -405,7 +405,7 @@ fn table(groups: &[String], random: Option<&Path>) -> Result<String> {
     if let Some(r) = random {
         let _ = writeln!(
             s,
-            "| random walk | — | {:.1} | {:.1} | {:.0} % | 0 | 0 | |",
+            "| random walk | — | {:.1} | {:.1} | {:.1} % | 0 | 0 | |",
             r.avg_int,
             r.avg_ext,
             100.0 * r.success
