@@ -197,12 +197,14 @@ fn main() {
     let pytorch = value_of("--pytorch").map(|p| read_pytorch(&p)).unwrap_or_default();
     let threads = init_cpu_runtime(None);
     let isa = Isa::active();
+    let amx = pednav_nets::ops::conv::amx_available();
     let cpu = cpu_model();
     println!(
-        "threads: {threads}, kernels: {isa} (set PEDNAV_ISA=baseline|avx2|avx512 to force one), CPU: {cpu}, device: {device_spec}"
+        "threads: {threads}, kernels: {isa} (set PEDNAV_ISA=baseline|avx2|avx512 to force one), AMX for bf16 convolutions: {amx} (PEDNAV_AMX=off to keep AVX-512 BF16), CPU: {cpu}, device: {device_spec}"
     );
     let mut report = serde_json::Map::new();
     report.insert("isa".into(), isa.name().into());
+    report.insert("amx".into(), amx.into());
     report.insert("cpu".into(), cpu.clone().into());
     report.insert("threads".into(), threads.into());
     report.insert("device".into(), device_spec.to_string().into());

@@ -4,7 +4,11 @@
 //! an optimisation of `ops::conv` should target; `dsac_update` (learner) measures
 //! the whole update.
 //!
-//! `cargo bench -p pednav-nets --bench conv_layers [-- --quick]`
+//! `cargo bench -p pednav-nets --bench conv_layers [-- --quick] [-- --bf16]`
+//!
+//! `--bf16` runs every layer in mixed precision (`ConvSpec::bf16`: the AVX-512 BF16
+//! kernels, or AMX tiles for the forward and input gradient where the CPU has them
+//! and `PEDNAV_AMX` is not `off`); it needs AVX-512 BF16 on the `avx512` path.
 
 use std::time::Instant;
 
@@ -80,9 +84,24 @@ fn flops(l: &Layer) -> f64 {
 
 fn main() -> candle_core::Result<()> {
     let quick = std::env::args().any(|a| a == "--quick");
+    let bf16 = std::env::args().any(|a| a == "--bf16");
     let threads = init_cpu_runtime(None);
+    if bf16 && !pednav_nets::ops::conv::bf16_available() {
+        candle_core::bail!("--bf16 needs AVX-512 BF16 on the avx512 path (PEDNAV_ISA unset or avx512)");
+    }
     let reps = if quick { 3 } else { 7 };
-    println!("threads: {threads}");
+    let amx = pednav_nets::ops::conv::amx_available();
+    println!(
+        "threads: {threads}, kernels: {}, {}",
+        pednav_nets::ops::Isa::active(),
+        if !bf16 {
+            "f32"
+        } else if amx {
+            "bf16 (forward and input gradient on AMX tiles)"
+        } else {
+            "bf16 (AVX-512 BF16)"
+        }
+    );
     println!("| layer | input (B,T,H,W,C) | C_out | GFLOP fwd | fwd ms | fwd GFLOP/s | fwd+bwd ms | fwd+bwd GFLOP/s |");
     println!("|---|---|---|---|---|---|---|---|");
     let dev = Device::Cpu;
@@ -93,7 +112,8 @@ fn main() -> candle_core::Result<()> {
     ];
     for (what, layers) in configs {
         println!("| **{what}** | | | | | | | |");
-        for l in layers {
+        for mut l in layers {
+            l.spec.bf16 = bf16;
             let ci = l.input[4];
             let x = Var::from_tensor(&Tensor::rand(0f32, 1f32, &l.input[..], &dev)?)?;
             let w = Var::from_tensor(&Tensor::randn(0f32, 0.1, (l.spec.weight_rows(ci), l.c_out), &dev)?)?;

@@ -71,7 +71,9 @@ pub fn init_cpu_runtime(threads: Option<usize>) -> usize {
             tracing::debug!("init_cpu_runtime after other threads started: RAYON_NUM_THREADS left unset");
         }
         let isa = crate::ops::Isa::active();
-        tracing::info!(isa = isa.name(), threads = n, "CPU kernels");
+        // Resolved here so a bad PEDNAV_AMX stops the process before any work.
+        let amx = crate::ops::conv::amx_available();
+        tracing::info!(isa = isa.name(), amx, threads = n, "CPU kernels");
         // If something already built the global pool, keep it. Its workers get the
         // main thread's stack size: [`on_pool_worker`] runs whole updates there
         // (candle's backward pass walks the graph recursively).

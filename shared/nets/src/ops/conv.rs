@@ -37,13 +37,18 @@
 //! AVX-512 BF16 on the `avx512` path, the direct kernels' layers multiply in bf16 and sum in
 //! f32 ([`bf16`]: forward and weight gradient for C_out ∈ {16, 32, 64} with even
 //! k_w·C_in, the input gradient where the f32 direct one applies); every other layer
-//! and path stays f32.
+//! and path stays f32. Where the CPU also has AMX-BF16 (and `PEDNAV_AMX` is not
+//! `off`), the forward of those layers whose k_w·C_in is a multiple of 32 runs on AMX
+//! tiles instead ([`amx`]: the same products and f32 sums, the same packed operands),
+//! and so does the input gradient of those whose C_out is 16 or a multiple of 32.
 //!
 //! Layout: this file holds the layer's spec ([`ConvSpec`]), the forward and backward
 //! drivers and the candle op; [`geometry`] the sizes of a call and im2col/col2im,
 //! [`gemm_call`] the gemm calls, [`pool`] the per-thread scratch buffers,
-//! [`direct`] the direct kernels and [`bf16`] their mixed-precision variants.
+//! [`direct`] the direct kernels, [`bf16`] their mixed-precision variants and [`amx`]
+//! the bf16 forward and input gradient on AMX tiles.
 
+mod amx;
 mod bf16;
 mod direct;
 mod gemm_call;
@@ -56,6 +61,7 @@ use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 use super::Isa;
+pub use amx::{AMX_ENV, amx_available};
 pub use bf16::{bf16_available, cpu_has_bf16};
 use geometry::{Geometry, col2im_add, im2col};
 use pool::Pooled;
@@ -210,8 +216,22 @@ fn forward(g: &Geometry, x: &[f32], w: &[f32], bias: &[f32]) -> Vec<f32> {
     // Mixed precision where the layer asks for it and the bf16 kernel takes it: the
     // weights packed once per call, each sample's padded input converted as it is padded.
     let half = direct && bf16::forward_supported(g, isa);
+    // On AMX the same packed weights and padded input feed the tile kernel (its input
+    // scratch a little longer: the tiles' unused rows read past the last position).
+    let tiles = half && amx::forward_supported(g, isa);
     let packed = if half { bf16::pack_forward_weights(g, w) } else { Vec::new() };
-    let scratch_len = if half { g.padded_len().div_ceil(2) } else { g.input_scratch_len(direct) };
+    let scratch_len = match (half, tiles) {
+        (true, true) => (g.padded_len() + amx::slack(g)).div_ceil(2),
+        (true, false) => g.padded_len().div_ceil(2),
+        _ => g.input_scratch_len(direct),
+    };
+    let half_forward = |xp: &[u16], y: &mut [f32], q: std::ops::Range<usize>| {
+        if tiles {
+            amx::forward(g, xp, &packed, bias, y, q);
+        } else {
+            bf16::forward(g, isa, xp, &packed, bias, y, q);
+        }
+    };
     if direct && matches!(par, Parallelism::Rayon(_)) {
         // Fewer samples than threads (actor inference): split each sample's output
         // positions over the pool instead, in whole blocks.
@@ -227,7 +247,7 @@ fn forward(g: &Geometry, x: &[f32], w: &[f32], bias: &[f32]) -> Vec<f32> {
                 let xp16 = xp.as_bf16_mut();
                 bf16::pad_frames(g, xb, xp16);
                 let xp16: &[u16] = xp16;
-                chunks.for_each(|(yc, q)| bf16::forward(g, isa, xp16, &packed, bias, yc, q));
+                chunks.for_each(|(yc, q)| half_forward(xp16, yc, q));
             } else {
                 direct::pad_frames(g, xb, &mut xp);
                 let xp32: &[f32] = &xp;
@@ -245,7 +265,7 @@ fn forward(g: &Geometry, x: &[f32], w: &[f32], bias: &[f32]) -> Vec<f32> {
                 if half {
                     let xp = scratch.as_bf16_mut();
                     bf16::pad_frames(g, xb, xp);
-                    bf16::forward(g, isa, xp, &packed, bias, y, 0..g.to * g.ps());
+                    half_forward(&*xp, y, 0..g.to * g.ps());
                     return;
                 }
                 if direct {
@@ -302,6 +322,9 @@ fn backward(
     // In mixed precision (where the bf16 kernel takes the layer) it multiplies the
     // bf16-rounded output gradient by bf16 weights.
     let half_dx = direct_dx && bf16::input_grad_supported(g, isa);
+    // On AMX the same operands go through tiles (the gradient scratch a little
+    // longer: the last block's unused rows read past the last position).
+    let tiles_dx = half_dx && amx::input_grad_supported(g, isa);
     let wt = if direct_dx && !half_dx { direct::transpose_weights(g, w) } else { Vec::new() };
     let wt_half = if half_dx { bf16::pack_input_grad_weights(g, w) } else { Vec::new() };
     // The weight gradient in mixed precision too: pairs of neighbouring positions of
@@ -334,7 +357,11 @@ fn backward(
         cols: Pooled::new(g.input_scratch_len(direct)),
         dcols: Pooled::new(dx_scratch_len),
         gy: Pooled::new(g.out_len()),
-        gy_half: Pooled::new(if half_dx { g.out_len().div_ceil(2) } else { 0 }),
+        gy_half: Pooled::new(match (half_dx, tiles_dx) {
+            (true, true) => (g.out_len() + amx::input_grad_slack(g)).div_ceil(2),
+            (true, false) => g.out_len().div_ceil(2),
+            _ => 0,
+        }),
         x_pairs: Pooled::new(if half_dw { bf16::paired_input_len(g).div_ceil(2) } else { 0 }),
         gy_pairs: Pooled::new(if half_dw { bf16::paired_gradient_len(g).div_ceil(2) } else { 0 }),
     };
@@ -377,7 +404,11 @@ fn backward(
             if half_dx {
                 let gy_half = s.gy_half.as_bf16_mut();
                 bf16::convert(&s.gy, gy_half);
-                bf16::input_grad(g, isa, &wt_half, gy_half, &mut s.dcols);
+                if tiles_dx {
+                    amx::input_grad(g, &wt_half, gy_half, &mut s.dcols);
+                } else {
+                    bf16::input_grad(g, isa, &wt_half, gy_half, &mut s.dcols);
+                }
             } else {
                 direct::input_grad(g, isa, &wt, &s.gy, &mut s.dcols);
             }
