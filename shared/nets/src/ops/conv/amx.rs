@@ -76,6 +76,31 @@ fn cpu_reports_amx() -> bool {
     }
 }
 
+/// Whether the operating system enables the AMX tile state (XCR0 bits 17 and 18: set
+/// by Linux since 5.16, which then hands it out per process on request).
+fn os_enables_amx() -> bool {
+    #[cfg(target_arch = "x86_64")]
+    {
+        // SAFETY: CPUID is available on every x86-64 CPU.
+        #[allow(unused_unsafe)]
+        let leaf1 = unsafe { std::arch::x86_64::__cpuid(1) };
+        if leaf1.ecx & (1 << 27) == 0 {
+            return false; // no OSXSAVE: XGETBV would fault
+        }
+        let (lo, hi): (u32, u32);
+        // SAFETY: XGETBV with ECX = 0 reads XCR0; OSXSAVE (checked) makes it available.
+        unsafe {
+            std::arch::asm!("xgetbv", in("ecx") 0u32, out("eax") lo, out("edx") hi, options(nomem, nostack));
+        }
+        let xcr0 = (u64::from(hi) << 32) | u64::from(lo);
+        xcr0 & (0b11 << 17) == 0b11 << 17
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    {
+        false
+    }
+}
+
 /// Ask Linux for the AMX tile data state for this process (all its threads).
 fn request_tile_permission() -> bool {
     #[cfg(all(target_arch = "x86_64", target_os = "linux"))]
@@ -104,7 +129,7 @@ pub fn amx_available() -> bool {
     *AVAILABLE.get_or_init(|| {
         let setting = std::env::var(AMX_ENV).ok();
         let allowed = allowed(setting.as_deref()).unwrap_or_else(|e| panic!("{e}"));
-        allowed && bf16::cpu_has_bf16() && cpu_reports_amx() && request_tile_permission()
+        allowed && bf16::cpu_has_bf16() && cpu_reports_amx() && os_enables_amx() && request_tile_permission()
     })
 }
 
@@ -406,12 +431,16 @@ mod tests {
     use super::*;
     use crate::ops::ConvSpec;
 
-    /// Whether this test process runs the AMX kernels; a CPU that has them, on the
-    /// `avx512` path with `PEDNAV_AMX` unset, must (else the operating system
-    /// refused the tile state, which would silently cost the speed).
+    /// Whether this test process runs the AMX kernels; a CPU that has them under an
+    /// operating system that enables them, on the `avx512` path with `PEDNAV_AMX`
+    /// unset, must (else Linux refused the tile state, which would silently cost the speed).
     fn runs_amx() -> bool {
         if Isa::active() != Isa::Avx512 || !bf16::cpu_has_bf16() || !cpu_reports_amx() {
             eprintln!("skipped: this CPU has no AMX-BF16 (or the avx512 path is not active)");
+            return false;
+        }
+        if !os_enables_amx() {
+            eprintln!("skipped: the operating system does not enable the AMX tile state (XCR0)");
             return false;
         }
         if std::env::var_os(AMX_ENV).is_some() && !amx_available() {
