@@ -7,7 +7,7 @@
 //! `cargo bench -p pednav-nets --bench conv_layers [-- --quick] [-- --bf16]`
 //!
 //! `--bf16` runs every layer in mixed precision (`ConvSpec::bf16`: the AVX-512 BF16
-//! kernels, or AMX tiles for the forward and input gradient where the CPU has them
+//! kernels, or AMX tiles for the forward and both gradients where the CPU has them
 //! and `PEDNAV_AMX` is not `off`); it needs AVX-512 BF16 on the `avx512` path.
 
 use std::time::Instant;
@@ -97,7 +97,7 @@ fn main() -> candle_core::Result<()> {
         if !bf16 {
             "f32"
         } else if amx {
-            "bf16 (forward and input gradient on AMX tiles)"
+            "bf16 (forward and gradients on AMX tiles)"
         } else {
             "bf16 (AVX-512 BF16)"
         }

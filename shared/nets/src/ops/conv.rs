@@ -40,13 +40,15 @@
 //! and path stays f32. Where the CPU also has AMX-BF16 (and `PEDNAV_AMX` is not
 //! `off`), the forward of those layers whose k_w·C_in is a multiple of 32 runs on AMX
 //! tiles instead ([`amx`]: the same products and f32 sums, the same packed operands),
-//! and so does the input gradient of those whose C_out is 16 or a multiple of 32.
+//! and so does the input gradient of those whose C_out is 16 or a multiple of 32, and
+//! the weight gradient of those whose k_w·C_in is a multiple of 16 and whose output
+//! rows hold at least 5 positions.
 //!
 //! Layout: this file holds the layer's spec ([`ConvSpec`]), the forward and backward
 //! drivers and the candle op; [`geometry`] the sizes of a call and im2col/col2im,
 //! [`gemm_call`] the gemm calls, [`pool`] the per-thread scratch buffers,
 //! [`direct`] the direct kernels, [`bf16`] their mixed-precision variants and [`amx`]
-//! the bf16 forward and input gradient on AMX tiles.
+//! the bf16 forward and gradients on AMX tiles.
 
 mod amx;
 mod bf16;
@@ -219,7 +221,7 @@ fn forward(g: &Geometry, x: &[f32], w: &[f32], bias: &[f32]) -> Vec<f32> {
     // On AMX the same packed weights and padded input feed the tile kernel (its input
     // scratch a little longer: the tiles' unused rows read past the last position).
     let tiles = half && amx::forward_supported(g, isa);
-    let packed = if half { bf16::pack_forward_weights(g, w) } else { Vec::new() };
+    let packed = if half { Pooled::bf16_copy(&bf16::pack_forward_weights(g, w)) } else { Pooled::new(0) };
     let scratch_len = match (half, tiles) {
         (true, true) => (g.padded_len() + amx::slack(g)).div_ceil(2),
         (true, false) => g.padded_len().div_ceil(2),
@@ -227,9 +229,9 @@ fn forward(g: &Geometry, x: &[f32], w: &[f32], bias: &[f32]) -> Vec<f32> {
     };
     let half_forward = |xp: &[u16], y: &mut [f32], q: std::ops::Range<usize>| {
         if tiles {
-            amx::forward(g, xp, &packed, bias, y, q);
+            amx::forward(g, xp, packed.as_bf16(), bias, y, q);
         } else {
-            bf16::forward(g, isa, xp, &packed, bias, y, q);
+            bf16::forward(g, isa, xp, packed.as_bf16(), bias, y, q);
         }
     };
     if direct && matches!(par, Parallelism::Rayon(_)) {
@@ -326,10 +328,14 @@ fn backward(
     // longer: the last block's unused rows read past the last position).
     let tiles_dx = half_dx && amx::input_grad_supported(g, isa);
     let wt = if direct_dx && !half_dx { direct::transpose_weights(g, w) } else { Vec::new() };
-    let wt_half = if half_dx { bf16::pack_input_grad_weights(g, w) } else { Vec::new() };
+    let wt_half = if half_dx { Pooled::bf16_copy(&bf16::pack_input_grad_weights(g, w)) } else { Pooled::new(0) };
     // The weight gradient in mixed precision too: pairs of neighbouring positions of
     // an output row (a layer with rows of one position would only pad every pair).
     let half_dw = direct && g.wo > 1 && bf16::forward_supported(g, isa);
+    // On AMX the paired input feeds tiles too (followed by zeros the last row's
+    // padding positions read), with the paired gradient transposed per row chunk.
+    let tiles_dw = half_dw && amx::weight_grad_supported(g, isa);
+    let x_pairs_len = bf16::paired_input_len(g) + if tiles_dw { amx::weight_grad_slack(g) } else { 0 };
     let dx_scratch_len = if direct_dx {
         g.padded_len()
     } else if need_dx && !pointwise {
@@ -350,6 +356,7 @@ fn backward(
         gy_half: Pooled,
         x_pairs: Pooled,
         gy_pairs: Pooled,
+        gy_transposed: Pooled,
     }
     let new_scratch = || Scratch {
         dw: vec![0f32; kt * ks * co],
@@ -362,8 +369,9 @@ fn backward(
             (true, false) => g.out_len().div_ceil(2),
             _ => 0,
         }),
-        x_pairs: Pooled::new(if half_dw { bf16::paired_input_len(g).div_ceil(2) } else { 0 }),
+        x_pairs: Pooled::new(if half_dw { x_pairs_len.div_ceil(2) } else { 0 }),
         gy_pairs: Pooled::new(if half_dw { bf16::paired_gradient_len(g).div_ceil(2) } else { 0 }),
+        gy_transposed: Pooled::new(if tiles_dw { amx::transposed_gradient_len(g).div_ceil(2) } else { 0 }),
     };
     let per_sample = |mut s: Scratch, xb: &[f32], yb: &[f32], dyb: &[f32], mut dxb: Option<&mut [f32]>| {
         // Gradient at the pre-activation: the ReLU mask comes from the saved output.
@@ -382,7 +390,14 @@ fn backward(
                 bf16::pair_positions(g, &s.cols, x_pairs);
                 let gy_pairs = s.gy_pairs.as_bf16_mut();
                 bf16::pair_gradients(g, &s.gy, gy_pairs);
-                bf16::weight_grad(g, isa, x_pairs, gy_pairs, &mut s.dw);
+                if tiles_dw {
+                    x_pairs[bf16::paired_input_len(g)..].fill(0);
+                    let gy_transposed = s.gy_transposed.as_bf16_mut();
+                    amx::transpose_gradients(g, gy_pairs, gy_transposed);
+                    amx::weight_grad(g, x_pairs, gy_transposed, &mut s.dw);
+                } else {
+                    bf16::weight_grad(g, isa, x_pairs, gy_pairs, &mut s.dw);
+                }
             } else {
                 direct::weight_grad(g, isa, &s.cols, &s.gy, &mut s.dw);
             }
@@ -405,9 +420,9 @@ fn backward(
                 let gy_half = s.gy_half.as_bf16_mut();
                 bf16::convert(&s.gy, gy_half);
                 if tiles_dx {
-                    amx::input_grad(g, &wt_half, gy_half, &mut s.dcols);
+                    amx::input_grad(g, wt_half.as_bf16(), gy_half, &mut s.dcols);
                 } else {
-                    bf16::input_grad(g, isa, &wt_half, gy_half, &mut s.dcols);
+                    bf16::input_grad(g, isa, wt_half.as_bf16(), gy_half, &mut s.dcols);
                 }
             } else {
                 direct::input_grad(g, isa, &wt, &s.gy, &mut s.dcols);

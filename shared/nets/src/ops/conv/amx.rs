@@ -1,6 +1,6 @@
 //! The bf16 convolution kernels on Intel AMX tiles (`tdpbf16ps`), for CPUs that
 //! have AMX-BF16 (Xeon since Sapphire Rapids): the same products and f32 sums as
-//! [`super::bf16`]'s forward and input gradient, 16 × 16 × 32 multiply-adds per
+//! [`super::bf16`]'s forward, input gradient and weight gradient, 16 × 16 × 32 multiply-adds per
 //! instruction instead of 16 × 2, from the same packed operands.
 //!
 //! - Forward: the layer is an implicit matrix product. A block of up to 16 output
@@ -21,14 +21,29 @@
 //!   C tile added into the padded input gradient position by position; the last
 //!   block's unused rows read [`input_grad_slack`] values past the gradient.
 //!
+//! - Weight gradient: dWᵀ, one C tile per 16 output channels × 16 consecutive taps of
+//!   one run, summed over the sample's output rows. Per output row (or chunk of at
+//!   most 16 position pairs of it, all chunks of a layer one size), the A tile is
+//!   16 channels' gradients at the chunk's positions — the paired gradient
+//!   transposed so that a channel's pairs lie contiguous ([`transpose_gradients`]) —
+//!   and the B tile the chunk's position pairs × 16 taps of the paired input
+//!   [`super::bf16::pair_positions`] already builds (consecutive pairs of one output
+//!   row lie 2·s_w·C_in values apart, so `tileloadd` reads them with that stride).
+//!   Positions past a row's end have zero gradients; for the last row they read
+//!   [`weight_grad_slack`] zeros past the paired input.
+//!
 //! Use needs the kernel's permission once per process (`arch_prctl`
 //! `ARCH_REQ_XCOMP_PERM`, Linux ≥ 5.16); [`amx_available`] asks for it. `PEDNAV_AMX=off`
 //! keeps the AVX-512 BF16 kernels (to measure one against the other).
 //!
-//! Invariant: [`forward`] and [`input_grad`] compute what [`super::bf16::forward`] and
-//! [`super::bf16::input_grad`] compute for the same arguments (up to the order of the
-//! f32 sums), and read only the padded input, its slack and the packed weights; the
-//! unit tests check them on the encoder's layer shapes.
+//! Layout: this file holds the conditions, the layouts the tiles read and the safe
+//! entry points (which check every length); [`tiles`] the `asm!` kernels.
+//!
+//! Invariant: [`forward`], [`input_grad`] and [`weight_grad`] compute what
+//! [`super::bf16::forward`], [`super::bf16::input_grad`] and [`super::bf16::weight_grad`]
+//! compute for the same operands (up to the order of the f32 sums), and read only
+//! their operands and the slack past them; the unit tests check them on the
+//! encoder's layer shapes.
 
 use std::ops::Range;
 use std::sync::OnceLock;
@@ -151,7 +166,7 @@ pub(super) fn slack(g: &Geometry) -> usize {
 
 /// Forward of output positions `positions` of one sample, as [`bf16::forward`]:
 /// `xp` the bf16 padded input followed by at least [`slack`] readable values,
-/// `wp` the packed weights; y (positions.len(), C_out) in f32 with bias and ReLU.
+/// `wp` the packed weights ([`bf16::pack_forward_weights`]); y (positions.len(), C_out) in f32 with bias and ReLU.
 pub(super) fn forward(g: &Geometry, xp: &[u16], wp: &[u16], bias: &[f32], y: &mut [f32], positions: Range<usize>) {
     assert!(forward_supported(g, Isa::active()), "no AMX forward for this layer");
     assert!(xp.len() >= g.padded_len() + slack(g), "padded frames (with the tile slack) too short");
@@ -201,227 +216,150 @@ pub(super) fn input_grad(g: &Geometry, wtp: &[u16], gy: &[u16], dxp: &mut [f32])
     }
 }
 
-#[cfg(target_arch = "x86_64")]
-mod tiles {
-    //! The tile instructions. Tiles: tmm0–tmm3 the C accumulators (16 output
-    //! channels each), tmm4 the A tile (positions × 32 inputs), tmm5 and tmm6 the B
-    //! tiles (16 tap pairs × 16 channels), alternating so a load can overlap the
-    //! product before it. The compiler allocates no tile registers, so they keep
-    //! their contents between the `asm!` blocks of one call.
-    use std::arch::asm;
-    use std::ops::Range;
+/// Whether the AMX weight gradient takes this layer on `isa`: where the bf16 one
+/// does (C_out 16, 32 or 64), with runs of k_w·C_in inputs in whole groups of 16
+/// taps (the columns of a C tile) and output rows of at least 5 positions: rows of
+/// 3 or 4 give products of 4 bf16 of the tile's 32, which measured slower than the
+/// AVX-512 BF16 kernel (the 3D-TCN's third layer at 42², `conv_layers --bf16`:
+/// 1.2–1.8 against 1.0–1.1 ms forward + backward).
+pub(super) fn weight_grad_supported(g: &Geometry, isa: Isa) -> bool {
+    bf16::forward_supported(g, isa) && g.wo >= 5 && (g.spec.kernel[2] * g.ci).is_multiple_of(16) && amx_available()
+}
 
-    use super::super::Geometry;
-    use super::super::direct::{input_offsets, tap_offset};
+/// How the weight gradient splits an output row's ⌈W_out / 2⌉ position pairs:
+/// (chunks per row, pairs per chunk) — as few chunks of at most 16 pairs (a tile's
+/// K of 32 bf16) as cover the row, all of one size, since the tiles' shape is set
+/// once per call.
+fn row_chunks(g: &Geometry) -> (usize, usize) {
+    let pairs = g.wo.div_ceil(2);
+    let chunks = pairs.div_ceil(16);
+    (chunks, pairs.div_ceil(chunks))
+}
 
-    /// `ldtilecfg`'s 64-byte operand.
-    #[repr(C, align(64))]
-    struct TileConfig([u8; 64]);
+/// Zeros the paired input ([`bf16::pair_positions`]) must be followed by (enough,
+/// with a position to spare): a row's chunks cover 2·chunks·pairs ≥ W_out positions,
+/// and the last row's extra ones read s_w·C_in paired values (2 bf16 each) per
+/// position past the end.
+pub(super) fn weight_grad_slack(g: &Geometry) -> usize {
+    let (chunks, pairs) = row_chunks(g);
+    2 * (2 * chunks * pairs - g.wo) * g.spec.stride[1] * g.ci
+}
 
-    impl TileConfig {
-        /// Palette 1: the C tiles (0–3) `m` rows of 16 f32, the A tile (4) `m` rows of
-        /// `a_bytes`, the B tiles (5, 6) `a_bytes / 4` rows (pairs) of 16 columns.
-        fn new(m: usize, a_bytes: usize) -> TileConfig {
-            assert!(m <= 16 && a_bytes <= 64 && a_bytes.is_multiple_of(4), "tile shape");
-            let mut c = [0u8; 64];
-            c[0] = 1;
-            for t in 0..7 {
-                let (bytes, rows) = match t {
-                    0..=3 => (64, m),
-                    4 => (a_bytes, m),
-                    _ => (64, a_bytes / 4),
-                };
-                c[16 + 2 * t] = bytes as u8;
-                c[48 + t] = rows as u8;
-            }
-            TileConfig(c)
-        }
-    }
+/// bf16 values of [`transpose_gradients`]' output for one sample.
+pub(super) fn transposed_gradient_len(g: &Geometry) -> usize {
+    let (chunks, pairs) = row_chunks(g);
+    g.to * g.ho * chunks * g.co * pairs * 2
+}
 
-    #[inline(always)]
-    unsafe fn zero_c(j: usize) {
-        // SAFETY: tile state configured by the caller.
-        unsafe {
-            match j {
-                0 => asm!("tilezero tmm0", options(nostack, nomem)),
-                1 => asm!("tilezero tmm1", options(nostack, nomem)),
-                2 => asm!("tilezero tmm2", options(nostack, nomem)),
-                _ => asm!("tilezero tmm3", options(nostack, nomem)),
-            }
-        }
-    }
-
-    /// A tile ← rows of 64 bytes at `p`, `stride` bytes apart.
-    #[inline(always)]
-    unsafe fn load_a(p: *const u16, stride: usize) {
-        // SAFETY: the caller guarantees every row readable.
-        unsafe { asm!("tileloadd tmm4, [{p} + {s}*1]", p = in(reg) p, s = in(reg) stride, options(nostack, readonly)) }
-    }
-
-    /// B tile of C tile `j` ← 16 rows of 64 bytes at `p`, `stride` bytes apart; then
-    /// C_j += A · B.
-    #[inline(always)]
-    unsafe fn load_b_and_multiply(j: usize, p: *const u16, stride: usize) {
-        // SAFETY: the caller guarantees every row readable; tiles configured.
-        unsafe {
-            match j {
-                0 => asm!("tileloadd tmm5, [{p} + {s}*1]", "tdpbf16ps tmm0, tmm4, tmm5",
-                    p = in(reg) p, s = in(reg) stride, options(nostack, readonly)),
-                1 => asm!("tileloadd tmm6, [{p} + {s}*1]", "tdpbf16ps tmm1, tmm4, tmm6",
-                    p = in(reg) p, s = in(reg) stride, options(nostack, readonly)),
-                2 => asm!("tileloadd tmm5, [{p} + {s}*1]", "tdpbf16ps tmm2, tmm4, tmm5",
-                    p = in(reg) p, s = in(reg) stride, options(nostack, readonly)),
-                _ => asm!("tileloadd tmm6, [{p} + {s}*1]", "tdpbf16ps tmm3, tmm4, tmm6",
-                    p = in(reg) p, s = in(reg) stride, options(nostack, readonly)),
-            }
-        }
-    }
-
-    /// C tile `j` → rows of 16 f32 at `p`, 64 bytes apart.
-    #[inline(always)]
-    unsafe fn store_c(j: usize, p: *mut f32) {
-        // SAFETY: the caller guarantees `rows` × 64 writable bytes.
-        unsafe {
-            match j {
-                0 => asm!("tilestored [{p} + {s}*1], tmm0", p = in(reg) p, s = in(reg) 64usize, options(nostack)),
-                1 => asm!("tilestored [{p} + {s}*1], tmm1", p = in(reg) p, s = in(reg) 64usize, options(nostack)),
-                2 => asm!("tilestored [{p} + {s}*1], tmm2", p = in(reg) p, s = in(reg) 64usize, options(nostack)),
-                _ => asm!("tilestored [{p} + {s}*1], tmm3", p = in(reg) p, s = in(reg) 64usize, options(nostack)),
-            }
-        }
-    }
-
-    /// See [`super::forward`]; C_out = 16·R.
-    pub(super) unsafe fn forward<const R: usize>(
-        g: &Geometry,
-        xp: &[u16],
-        wp: &[u16],
-        bias: &[f32],
-        y: &mut [f32],
-        positions: Range<usize>,
-    ) {
-        let co = g.co;
-        assert_eq!(co, 16 * R, "R tiles of 16 channels cover C_out");
-        let [kt, kh, kw] = g.spec.kernel;
-        let run = kw * g.ci;
-        let rows = super::tile_rows(g);
-        let a_stride = 2 * g.spec.stride[1] * g.ci; // bytes between consecutive positions
-        let b_stride = 2 * 2 * co; // bytes between tap pairs of the packed weights
-        let mut tap_rows = Vec::with_capacity(kt * kh);
-        for dt in 0..kt {
-            for dh in 0..kh {
-                tap_rows.push(tap_offset(g, dt, dh));
-            }
-        }
-        let config = TileConfig::new(rows, 64);
-        let mut c = [[0f32; 256]; R];
-        let (x, w) = (xp.as_ptr(), wp.as_ptr());
-        let first = positions.start;
-        // SAFETY: every A row read lies in the padded input or its slack (the caller
-        // checked the lengths), every B row in the K/2 packed rows; C stores go to `c`.
-        unsafe {
-            asm!("ldtilecfg [{}]", in(reg) config.0.as_ptr(), options(nostack, readonly));
-            let mut q = first;
-            while q < positions.end {
-                let n = (g.wo - q % g.wo).min(positions.end - q).min(rows);
-                let [base]: [usize; 1] = input_offsets(g, q);
-                for j in 0..R {
-                    zero_c(j);
+/// The paired gradient of one sample ([`bf16::pair_gradients`]: slot, C_out, 2) with
+/// each row chunk's channels first: element `((chunk·C_out + o)·pairs + p)·2 + s` of
+/// a row's block is the gradient of channel o at the row's position
+/// 2·(chunk·pairs + p) + s, zero past the row's end — so one channel's gradients at
+/// a chunk's positions are one contiguous A-tile row.
+pub(super) fn transpose_gradients(g: &Geometry, paired: &[u16], out: &mut [u16]) {
+    let (chunks, pairs) = row_chunks(g);
+    let (co, row_pairs) = (g.co, g.wo.div_ceil(2));
+    let block = chunks * co * pairs * 2;
+    assert!(paired.len() >= bf16::paired_gradient_len(g), "paired gradient too short");
+    assert!(out.len() >= transposed_gradient_len(g), "transposed gradient too short");
+    let rows = paired[..bf16::paired_gradient_len(g)].chunks_exact(row_pairs * co * 2);
+    for (src, dst) in rows.zip(out.chunks_exact_mut(block)) {
+        for (c, dst) in dst.chunks_exact_mut(co * pairs * 2).enumerate() {
+            for p in 0..pairs {
+                let slot = c * pairs + p;
+                let from = src.get(slot * co * 2..(slot + 1) * co * 2);
+                for o in 0..co {
+                    let at = (o * pairs + p) * 2;
+                    let pair = from.map_or([0, 0], |f| [f[2 * o], f[2 * o + 1]]);
+                    dst[at..at + 2].copy_from_slice(&pair);
                 }
-                let mut pair_row = 0;
-                for &off in &tap_rows {
-                    for chunk in (0..run).step_by(32) {
-                        load_a(x.add(base + off + chunk), a_stride);
-                        for j in 0..R {
-                            load_b_and_multiply(j, w.add(pair_row * 2 * co + 32 * j), b_stride);
-                        }
-                        pair_row += 16;
-                    }
-                }
-                for (j, cj) in c.iter_mut().enumerate() {
-                    store_c(j, cj.as_mut_ptr());
-                }
-                for r in 0..n {
-                    let dst = &mut y[(q + r - first) * co..(q + r - first + 1) * co];
-                    for (j, cj) in c.iter().enumerate() {
-                        let sums = &cj[16 * r..16 * r + 16];
-                        for ((d, &s), &b) in dst[16 * j..16 * j + 16].iter_mut().zip(sums).zip(&bias[16 * j..]) {
-                            let v = s + b;
-                            *d = if g.spec.relu { v.max(0.0) } else { v };
-                        }
-                    }
-                }
-                q += n;
             }
-            asm!("tilerelease", options(nostack, nomem));
-        }
-    }
-
-    /// See [`super::input_grad`]. Blocks of 16 consecutive output positions (their
-    /// gradient rows lie C_out apart, whatever output row they are in) times up to
-    /// four tiles of 16 consecutive taps of one run; each C tile is added to the
-    /// padded input gradient row by row, positions one after the other (they may
-    /// overlap when the stride is below the kernel).
-    pub(super) unsafe fn input_grad(g: &Geometry, wt: &[u16], gy: &[u16], dx: &mut [f32]) {
-        let co = g.co;
-        let [kt, kh, kw] = g.spec.kernel;
-        let run = kw * g.ci;
-        let taps = kt * kh * run;
-        let chunk = co.min(32); // output channels per product
-        let positions = g.to * g.ps();
-        let a_stride = 2 * co; // bytes between gradient rows
-        let b_stride = 2 * 2 * taps; // bytes between channel pairs of the packed Wᵀ
-        let config = TileConfig::new(16, 2 * chunk);
-        let mut c = [[0f32; 256]; 4];
-        let (gp, wp) = (gy.as_ptr(), wt.as_ptr());
-        // SAFETY: A rows lie in the gradient or its slack, B rows in the C_out/2 rows
-        // of 2·K packed values; every addition into `dx` is at a real position's tap
-        // (a slice index, bounds-checked).
-        unsafe {
-            asm!("ldtilecfg [{}]", in(reg) config.0.as_ptr(), options(nostack, readonly));
-            let mut q = 0;
-            while q < positions {
-                let n = (positions - q).min(16);
-                let bases: [usize; 16] = input_offsets(g, q);
-                for dt in 0..kt {
-                    for dh in 0..kh {
-                        let off = tap_offset(g, dt, dh);
-                        let first_tap = (dt * kh + dh) * run;
-                        let mut i0 = 0;
-                        while i0 < run {
-                            let group = ((run - i0) / 16).min(4);
-                            for j in 0..group {
-                                zero_c(j);
-                            }
-                            for c0 in (0..co).step_by(chunk) {
-                                load_a(gp.add(q * co + c0), a_stride);
-                                for j in 0..group {
-                                    let k = first_tap + i0 + 16 * j;
-                                    load_b_and_multiply(j, wp.add((c0 / 2 * taps + k) * 2), b_stride);
-                                }
-                            }
-                            for (j, cj) in c.iter_mut().enumerate().take(group) {
-                                store_c(j, cj.as_mut_ptr());
-                            }
-                            for (r, &base) in bases.iter().enumerate().take(n) {
-                                let at = base + off + i0;
-                                let dst = &mut dx[at..at + 16 * group];
-                                for (j, cj) in c.iter().enumerate().take(group) {
-                                    for (d, &v) in dst[16 * j..16 * j + 16].iter_mut().zip(&cj[16 * r..16 * r + 16]) {
-                                        *d += v;
-                                    }
-                                }
-                            }
-                            i0 += 16 * group;
-                        }
-                    }
-                }
-                q += n;
-            }
-            asm!("tilerelease", options(nostack, nomem));
         }
     }
 }
+
+/// dW (K, C_out) += the weight gradient of one sample, as [`bf16::weight_grad`]:
+/// `xs` the paired input ([`bf16::pair_positions`]) followed by at least
+/// [`weight_grad_slack`] zeros, `gyt` the transposed paired gradient
+/// ([`transpose_gradients`]).
+pub(super) fn weight_grad(g: &Geometry, xs: &[u16], gyt: &[u16], dw: &mut [f32]) {
+    assert!(weight_grad_supported(g, Isa::active()), "no AMX weight gradient for this layer");
+    assert!(xs.len() >= bf16::paired_input_len(g) + weight_grad_slack(g), "paired input (with the slack) too short");
+    assert!(gyt.len() >= transposed_gradient_len(g), "transposed gradient too short");
+    assert!(dw.len() >= g.spec.weight_rows(g.ci) * g.co, "weight gradient too short");
+    // The furthest B-tile read — the last row's last pair at the last 16 taps —
+    // stays inside `xs` (checked from the geometry, independently of the slack).
+    let (chunks, pairs) = row_chunks(g);
+    let [kt, kh, _] = g.spec.kernel;
+    let [last_row]: [usize; 1] = super::direct::input_offsets(g, (g.to * g.ho - 1) * g.wo);
+    let last_pair = last_row + 2 * (chunks * pairs - 1) * g.spec.stride[1] * g.ci;
+    let last_taps = super::direct::tap_offset(g, kt - 1, kh - 1) + g.spec.kernel[2] * g.ci;
+    assert!(2 * (last_pair + last_taps) <= xs.len(), "the weight gradient's last tile reads past the paired input");
+    let [kt, kh, kw] = g.spec.kernel;
+    let run = kw * g.ci;
+    // Groups of 16 consecutive taps along each run.
+    let (mut group_offsets, mut group_taps) = (Vec::new(), Vec::new());
+    for dt in 0..kt {
+        for dh in 0..kh {
+            let off = super::direct::tap_offset(g, dt, dh);
+            for i in (0..run).step_by(16) {
+                group_offsets.push(off + i);
+                group_taps.push((dt * kh + dh) * run + i);
+            }
+        }
+    }
+    let pair_step = 2 * g.spec.stride[1] * g.ci; // padded values between a row's pairs
+    let mut chunk_bases = Vec::with_capacity(g.to * g.ho * chunks);
+    for row in 0..g.to * g.ho {
+        let [first]: [usize; 1] = super::direct::input_offsets(g, row * g.wo);
+        chunk_bases.extend((0..chunks).map(|c| first + c * pairs * pair_step));
+    }
+    let plan = WeightGradPlan { chunk_bases, group_offsets, group_taps, pairs, pair_step };
+    #[cfg(target_arch = "x86_64")]
+    // SAFETY: the CPU has AMX-BF16 and the process its tile state (weight_grad_supported);
+    // sizes and the furthest read checked above; the plan's chunks are the
+    // transposed gradient's blocks, its tap groups whole runs of 16.
+    unsafe {
+        tiles_weight_grad(g.co, &plan, xs, gyt, dw)
+    }
+}
+
+/// Which tiles of the paired input and the transposed gradient the weight gradient
+/// multiplies: B rows at `2·(chunk_bases[i] + group_offsets[j] + p·pair_step)` (bf16
+/// index, p < `pairs`), A rows chunk i's block of the transposed gradient.
+pub(super) struct WeightGradPlan {
+    /// Paired-input offset (before the doubling) of each chunk's first position pair.
+    pub(super) chunk_bases: Vec<usize>,
+    /// Offset of each group of 16 consecutive taps from a chunk's base.
+    pub(super) group_offsets: Vec<usize>,
+    /// Row of dW of each group's first tap.
+    pub(super) group_taps: Vec<usize>,
+    /// Position pairs per chunk (half the tiles' K), 1 to 16.
+    pub(super) pairs: usize,
+    /// Offset between consecutive pairs of a chunk.
+    pub(super) pair_step: usize,
+}
+
+/// The tile plan for C_out (4 tiles: two channel groups × two tap groups, or one
+/// channel group × three tap groups for C_out 16).
+///
+/// # Safety
+/// The CPU has AMX-BF16 and the process its tile state; every read `plan` implies lies
+/// in `xs` and `gyt`, and `dw` holds every group's rows of C_out.
+#[cfg(target_arch = "x86_64")]
+unsafe fn tiles_weight_grad(co: usize, plan: &WeightGradPlan, xs: &[u16], gyt: &[u16], dw: &mut [f32]) {
+    // SAFETY: forwarded from the caller.
+    unsafe {
+        if co == 16 {
+            tiles::weight_grad::<1, 3>(co, plan, xs, gyt, dw)
+        } else {
+            tiles::weight_grad::<2, 2>(co, plan, xs, gyt, dw)
+        }
+    }
+}
+
+#[cfg(target_arch = "x86_64")]
+mod tiles;
 
 #[cfg(test)]
 mod tests {
@@ -434,7 +372,7 @@ mod tests {
     /// Whether this test process runs the AMX kernels; a CPU that has them under an
     /// operating system that enables them, on the `avx512` path with `PEDNAV_AMX`
     /// unset, must (else Linux refused the tile state, which would silently cost the speed).
-    fn runs_amx() -> bool {
+    pub(super) fn runs_amx() -> bool {
         if Isa::active() != Isa::Avx512 || !bf16::cpu_has_bf16() || !cpu_reports_amx() {
             eprintln!("skipped: this CPU has no AMX-BF16 (or the avx512 path is not active)");
             return false;
@@ -531,6 +469,53 @@ mod tests {
             input_grad(&g, &packed, &gy16, &mut dx);
             for (u, v) in dx.iter().zip(&dx_ref) {
                 assert!((u - v).abs() <= 1e-4 * (1.0 + v.abs()), "C_out {co} C_in {ci}: {u} vs {v}");
+            }
+        }
+    }
+
+    /// The AMX weight gradient equals the AVX-512 BF16 one (itself checked against
+    /// the f32 kernels on rounded data) on the encoders' layer shapes: rows of one
+    /// chunk with even and odd W_out (the 3D-TCN's second layer at 42² and 84²), a
+    /// spatial stride of 3 over 32 channels (its third layer at 84²), rows of two
+    /// chunks (the frame-stacking encoder's first layer at 84², and a 2D layer of
+    /// W_out 39), C_out 16 with tap groups that three does not divide, C_out 32 with
+    /// an odd number of tap groups (the last pass fills half the C tiles), and a
+    /// temporal layer.
+    #[test]
+    fn amx_weight_gradient_equals_the_avx512_bf16_one() {
+        if !runs_amx() {
+            return;
+        }
+        let mut rng = ChaCha8Rng::seed_from_u64(7);
+        for (co, ci, spec, (t, h, w)) in [
+            (32, 16, ConvSpec::spatiotemporal(2, 2, 4, 2, 1), (7, 21, 21)),
+            (32, 16, ConvSpec::spatiotemporal(2, 2, 4, 2, 1), (5, 42, 42)),
+            (64, 32, ConvSpec::spatiotemporal(2, 4, 3, 3, 0), (13, 21, 21)),
+            (16, 16, ConvSpec::spatial(4, 2, 1), (1, 84, 84)),
+            (16, 32, ConvSpec::spatial(2, 1, 0), (1, 5, 40)),
+            (32, 16, ConvSpec::spatial(3, 1, 1), (1, 12, 12)),
+            (64, 64, ConvSpec::temporal(2, 1), (3, 5, 5)),
+        ] {
+            let spec = ConvSpec { bf16: true, ..spec };
+            let g = Geometry::new(spec, &[1, t, h, w, ci], &[spec.weight_rows(ci), co]).unwrap();
+            assert!(weight_grad_supported(&g, Isa::Avx512), "C_out {co} C_in {ci}");
+            let mut rand_vec = |n: usize| -> Vec<f32> { (0..n).map(|_| rng.random_range(-1.0..1.0)).collect() };
+            let (x, gy, start) = (rand_vec(g.in_len()), rand_vec(g.out_len()), rand_vec(spec.weight_rows(ci) * co));
+            let mut xp = vec![0f32; g.padded_len()];
+            super::super::direct::pad_frames(&g, &x, &mut xp);
+            let mut xs = vec![0u16; bf16::paired_input_len(&g) + weight_grad_slack(&g)];
+            bf16::pair_positions(&g, &xp, &mut xs);
+            let mut gys = vec![0u16; bf16::paired_gradient_len(&g)];
+            bf16::pair_gradients(&g, &gy, &mut gys);
+            // NaN bit patterns: every transposed value must be written.
+            let mut gyt = vec![0xffc0u16; transposed_gradient_len(&g)];
+            transpose_gradients(&g, &gys, &mut gyt);
+            let mut dw_ref = start.clone();
+            bf16::weight_grad(&g, Isa::Avx512, &xs, &gys, &mut dw_ref);
+            let mut dw = start;
+            weight_grad(&g, &xs, &gyt, &mut dw);
+            for (u, v) in dw.iter().zip(&dw_ref) {
+                assert!((u - v).abs() <= 1e-4 * (1.0 + v.abs()), "C_out {co} C_in {ci} ({t}, {h}, {w}): {u} vs {v}");
             }
         }
     }
