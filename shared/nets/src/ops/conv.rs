@@ -335,6 +335,7 @@ fn backward(
     // On AMX the paired input feeds tiles too (followed by zeros the last row's
     // padding positions read), with the paired gradient transposed per row chunk.
     let tiles_dw = half_dw && amx::weight_grad_supported(g, isa);
+    let dw_plan = tiles_dw.then(|| amx::WeightGradPlan::new(g));
     let x_pairs_len = bf16::paired_input_len(g) + if tiles_dw { amx::weight_grad_slack(g) } else { 0 };
     let dx_scratch_len = if direct_dx {
         g.padded_len()
@@ -390,11 +391,11 @@ fn backward(
                 bf16::pair_positions(g, &s.cols, x_pairs);
                 let gy_pairs = s.gy_pairs.as_bf16_mut();
                 bf16::pair_gradients(g, &s.gy, gy_pairs);
-                if tiles_dw {
+                if let Some(plan) = &dw_plan {
                     x_pairs[bf16::paired_input_len(g)..].fill(0);
                     let gy_transposed = s.gy_transposed.as_bf16_mut();
                     amx::transpose_gradients(g, gy_pairs, gy_transposed);
-                    amx::weight_grad(g, x_pairs, gy_transposed, &mut s.dw);
+                    amx::weight_grad(g, plan, x_pairs, gy_transposed, &mut s.dw);
                 } else {
                     bf16::weight_grad(g, isa, x_pairs, gy_pairs, &mut s.dw);
                 }

@@ -279,48 +279,30 @@ pub(super) fn transpose_gradients(g: &Geometry, paired: &[u16], out: &mut [u16])
 }
 
 /// dW (K, C_out) += the weight gradient of one sample, as [`bf16::weight_grad`]:
-/// `xs` the paired input ([`bf16::pair_positions`]) followed by at least
+/// `plan` the layer's [`WeightGradPlan`] (it depends on the geometry only: one per
+/// call), `xs` the paired input ([`bf16::pair_positions`]) followed by at least
 /// [`weight_grad_slack`] zeros, `gyt` the transposed paired gradient
 /// ([`transpose_gradients`]).
-pub(super) fn weight_grad(g: &Geometry, xs: &[u16], gyt: &[u16], dw: &mut [f32]) {
+pub(super) fn weight_grad(g: &Geometry, plan: &WeightGradPlan, xs: &[u16], gyt: &[u16], dw: &mut [f32]) {
+    let k = g.spec.weight_rows(g.ci);
     assert!(weight_grad_supported(g, Isa::active()), "no AMX weight gradient for this layer");
     assert!(xs.len() >= bf16::paired_input_len(g) + weight_grad_slack(g), "paired input (with the slack) too short");
     assert!(gyt.len() >= transposed_gradient_len(g), "transposed gradient too short");
-    assert!(dw.len() >= g.spec.weight_rows(g.ci) * g.co, "weight gradient too short");
-    // The furthest B-tile read — the last row's last pair at the last 16 taps —
-    // stays inside `xs` (checked from the geometry, independently of the slack).
-    let (chunks, pairs) = row_chunks(g);
-    let [kt, kh, _] = g.spec.kernel;
-    let [last_row]: [usize; 1] = super::direct::input_offsets(g, (g.to * g.ho - 1) * g.wo);
-    let last_pair = last_row + 2 * (chunks * pairs - 1) * g.spec.stride[1] * g.ci;
-    let last_taps = super::direct::tap_offset(g, kt - 1, kh - 1) + g.spec.kernel[2] * g.ci;
-    assert!(2 * (last_pair + last_taps) <= xs.len(), "the weight gradient's last tile reads past the paired input");
-    let [kt, kh, kw] = g.spec.kernel;
-    let run = kw * g.ci;
-    // Groups of 16 consecutive taps along each run.
-    let (mut group_offsets, mut group_taps) = (Vec::new(), Vec::new());
-    for dt in 0..kt {
-        for dh in 0..kh {
-            let off = super::direct::tap_offset(g, dt, dh);
-            for i in (0..run).step_by(16) {
-                group_offsets.push(off + i);
-                group_taps.push((dt * kh + dh) * run + i);
-            }
-        }
-    }
-    let pair_step = 2 * g.spec.stride[1] * g.ci; // padded values between a row's pairs
-    let mut chunk_bases = Vec::with_capacity(g.to * g.ho * chunks);
-    for row in 0..g.to * g.ho {
-        let [first]: [usize; 1] = super::direct::input_offsets(g, row * g.wo);
-        chunk_bases.extend((0..chunks).map(|c| first + c * pairs * pair_step));
-    }
-    let plan = WeightGradPlan { chunk_bases, group_offsets, group_taps, pairs, pair_step };
+    assert!(dw.len() >= k * g.co, "weight gradient too short");
+    // What the tiles read and write, from the plan they follow (independently of the
+    // slack): the furthest B row inside `xs`, every chunk's A block inside `gyt`, every
+    // tap group's 16 rows inside dW.
+    assert!(plan.paired_input_end() <= xs.len(), "the weight gradient's last tile reads past the paired input");
+    assert!(
+        plan.chunk_bases.len() * g.co * plan.pairs * 2 <= gyt.len(),
+        "more chunks than the transposed gradient holds"
+    );
+    assert!(plan.group_taps.iter().all(|&t| t + 16 <= k), "a tap group past the weight gradient's rows");
     #[cfg(target_arch = "x86_64")]
     // SAFETY: the CPU has AMX-BF16 and the process its tile state (weight_grad_supported);
-    // sizes and the furthest read checked above; the plan's chunks are the
-    // transposed gradient's blocks, its tap groups whole runs of 16.
+    // every read and write the plan implies checked above.
     unsafe {
-        tiles_weight_grad(g.co, &plan, xs, gyt, dw)
+        tiles_weight_grad(g.co, plan, xs, gyt, dw)
     }
 }
 
@@ -338,6 +320,40 @@ pub(super) struct WeightGradPlan {
     pub(super) pairs: usize,
     /// Offset between consecutive pairs of a chunk.
     pub(super) pair_step: usize,
+}
+
+impl WeightGradPlan {
+    /// The plan of layer `g`: a chunk per output row (or per part of a row,
+    /// [`row_chunks`]), a group per 16 consecutive taps of each run of k_w·C_in.
+    pub(super) fn new(g: &Geometry) -> WeightGradPlan {
+        let [kt, kh, kw] = g.spec.kernel;
+        let run = kw * g.ci;
+        let (mut group_offsets, mut group_taps) = (Vec::new(), Vec::new());
+        for dt in 0..kt {
+            for dh in 0..kh {
+                let off = super::direct::tap_offset(g, dt, dh);
+                for i in (0..run).step_by(16) {
+                    group_offsets.push(off + i);
+                    group_taps.push((dt * kh + dh) * run + i);
+                }
+            }
+        }
+        let (chunks, pairs) = row_chunks(g);
+        let pair_step = 2 * g.spec.stride[1] * g.ci; // padded values between a row's pairs
+        let mut chunk_bases = Vec::with_capacity(g.to * g.ho * chunks);
+        for row in 0..g.to * g.ho {
+            let [first]: [usize; 1] = super::direct::input_offsets(g, row * g.wo);
+            chunk_bases.extend((0..chunks).map(|c| first + c * pairs * pair_step));
+        }
+        WeightGradPlan { chunk_bases, group_offsets, group_taps, pairs, pair_step }
+    }
+
+    /// One past the last bf16 value of the paired input the B tiles read: the last
+    /// chunk's last pair at the furthest group of 16 taps.
+    fn paired_input_end(&self) -> usize {
+        let (base, group) = (self.chunk_bases.iter().max(), self.group_offsets.iter().max());
+        base.zip(group).map_or(0, |(b, o)| 2 * (b + (self.pairs - 1) * self.pair_step + o + 16))
+    }
 }
 
 /// The tile plan for C_out (4 tiles: two channel groups × two tap groups, or one
@@ -513,7 +529,7 @@ mod tests {
             let mut dw_ref = start.clone();
             bf16::weight_grad(&g, Isa::Avx512, &xs, &gys, &mut dw_ref);
             let mut dw = start;
-            weight_grad(&g, &xs, &gyt, &mut dw);
+            weight_grad(&g, &WeightGradPlan::new(&g), &xs, &gyt, &mut dw);
             for (u, v) in dw.iter().zip(&dw_ref) {
                 assert!((u - v).abs() <= 1e-4 * (1.0 + v.abs()), "C_out {co} C_in {ci} ({t}, {h}, {w}): {u} vs {v}");
             }
