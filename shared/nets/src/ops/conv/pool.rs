@@ -74,19 +74,20 @@ impl Pooled {
 
     /// The buffer's bytes as `2·len` bf16 values (read-only; see [`Pooled::as_bf16_mut`]).
     pub(super) fn as_bf16(&self) -> &[u16] {
-        let floats = &self.buf[self.start..self.start + self.len];
+        let floats: &[f32] = self;
         // SAFETY: as in `as_bf16_mut`, through a shared borrow.
-        unsafe { std::slice::from_raw_parts(floats.as_ptr().cast::<u16>(), 2 * self.len) }
+        unsafe { std::slice::from_raw_parts(floats.as_ptr().cast::<u16>(), 2 * floats.len()) }
     }
 
     /// The buffer's bytes as `2·len` bf16 values (bit patterns in `u16`), for the
     /// mixed-precision kernels: `Pooled::new(n.div_ceil(2))` holds `n` of them.
     pub(super) fn as_bf16_mut(&mut self) -> &mut [u16] {
-        let len = 2 * self.len;
+        // The same window as `deref_mut`: `len` floats from the aligned start.
+        let floats: &mut [f32] = self;
         // SAFETY: the view covers exactly the bytes of the `len` floats it is asked
         // for, `u16` has no invalid bit patterns and an alignment that divides
         // `f32`'s, and the mutable borrow of `self` keeps it the only view.
-        unsafe { std::slice::from_raw_parts_mut(self.buf[self.start..].as_mut_ptr().cast::<u16>(), len) }
+        unsafe { std::slice::from_raw_parts_mut(floats.as_mut_ptr().cast::<u16>(), 2 * floats.len()) }
     }
 }
 
