@@ -8,7 +8,9 @@
 //! On the CPU the moments are plain host arrays and each parameter's step is one
 //! in-place pass over parameter, gradient and moments ([`crate::ops::fused`]);
 //! on other devices the moments are tensors and the step is written in candle's
-//! ops. Both compute the same formula (tested against each other on the CPU).
+//! ops. Both compute the same formula (tested against each other on the CPU), except
+//! that the fused step stores no subnormal moment: moments and gradients far below
+//! f32's resolution of any step are taken as zero (`ops::fused`, *Subnormals*).
 //!
 //! Invariant: [`AdamW::step`] either applies a complete update to every parameter
 //! or, when any gradient is non-finite, changes nothing and reports it.
@@ -42,6 +44,23 @@ impl AdamWConfig {
     /// PyTorch's defaults with the given learning rate and no weight decay.
     pub fn with_lr(lr: f64) -> AdamWConfig {
         AdamWConfig { lr, beta1: 0.9, beta2: 0.999, eps: 1e-8, weight_decay: 0.0, max_grad_norm: None }
+    }
+}
+
+impl AdamScalars {
+    /// The scalars of step `t` (1-based) of `cfg` with the gradient scaled by `clip`,
+    /// computed in f64 and rounded once to f32.
+    pub fn of_step(cfg: &AdamWConfig, t: i32, clip: f64) -> AdamScalars {
+        AdamScalars {
+            lr: cfg.lr as f32,
+            beta1: cfg.beta1 as f32,
+            beta2: cfg.beta2 as f32,
+            one_minus_beta: [(1.0 - cfg.beta1) as f32, (1.0 - cfg.beta2) as f32],
+            eps: cfg.eps as f32,
+            bias_correction: [(1.0 - cfg.beta1.powi(t)) as f32, (1.0 - cfg.beta2.powi(t)) as f32],
+            decay: (1.0 - cfg.lr * cfg.weight_decay) as f32,
+            clip: clip as f32,
+        }
     }
 }
 
@@ -152,19 +171,10 @@ impl AdamW {
         let t = self.steps as i32;
         let bc1 = 1.0 - c.beta1.powi(t);
         let bc2 = 1.0 - c.beta2.powi(t);
+        let k = AdamScalars::of_step(&c, t, clip);
         let AdamW { params, moments, .. } = self;
         match moments {
             Moments::Host { m, v } => {
-                let k = AdamScalars {
-                    lr: c.lr as f32,
-                    beta1: c.beta1 as f32,
-                    beta2: c.beta2 as f32,
-                    one_minus_beta: [(1.0 - c.beta1) as f32, (1.0 - c.beta2) as f32],
-                    eps: c.eps as f32,
-                    bias_correction: [bc1 as f32, bc2 as f32],
-                    decay: (1.0 - c.lr * c.weight_decay) as f32,
-                    clip: clip as f32,
-                };
                 for (((_, p), m), v) in params.iter().zip(m).zip(v) {
                     if let Some(g) = grads.get(p.as_tensor()) {
                         fused::adam_step(p.as_tensor(), g, m, v, k)?;
