@@ -169,12 +169,10 @@ impl AdamW {
         self.steps += 1;
         let c = self.cfg;
         let t = self.steps as i32;
-        let bc1 = 1.0 - c.beta1.powi(t);
-        let bc2 = 1.0 - c.beta2.powi(t);
-        let k = AdamScalars::of_step(&c, t, clip);
         let AdamW { params, moments, .. } = self;
         match moments {
             Moments::Host { m, v } => {
+                let k = AdamScalars::of_step(&c, t, clip);
                 for (((_, p), m), v) in params.iter().zip(m).zip(v) {
                     if let Some(g) = grads.get(p.as_tensor()) {
                         fused::adam_step(p.as_tensor(), g, m, v, k)?;
@@ -182,6 +180,8 @@ impl AdamW {
                 }
             }
             Moments::Device { m, v } => {
+                let bc1 = 1.0 - c.beta1.powi(t);
+                let bc2 = 1.0 - c.beta2.powi(t);
                 for (((_, p), m), v) in params.iter().zip(m).zip(v) {
                     let Some(g) = grads.get(p.as_tensor()) else { continue };
                     // Gradients come out of `backward` still attached to the update's
