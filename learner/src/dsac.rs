@@ -34,6 +34,10 @@
 //! Invariant: every loss is computed with the pre-update weights and all gradients
 //! are taken before any optimiser steps; if any loss or gradient is non-finite the
 //! whole update is skipped (counted and logged) and the weights stay as they were.
+//! On the CPU the TD target is computed beside the critics' forward pass, and the
+//! critics' gradients beside the fraction, policy and temperature losses and theirs
+//! (two `rayon::join`s): the same ops on the same inputs, so the same numbers as in
+//! sequence (tested bit for bit), with one part's serial work filling the other's waits.
 
 use candle_core::{D, DType, Device, Tensor};
 use pednav_nets::heads::{features_of, standard_normal};
@@ -123,6 +127,40 @@ pub struct UpdateStats {
     pub policy_grad_norm: f64,
     /// The update was skipped (non-finite loss or gradient).
     pub skipped: bool,
+}
+
+/// The TD target of a batch and what the rest of the update reads of its pass.
+struct TdTarget {
+    /// yⱼ (B, N′), detached.
+    values: Tensor,
+    /// The target fractions' widths (B, N′), detached.
+    widths: Tensor,
+    /// The target encoder's o_{t+n} features, detached (the contrastive positives).
+    features: Tensor,
+}
+
+/// The online critics' forward pass at the batch's actions.
+struct CriticsForward {
+    fr: pednav_nets::heads::Fractions,
+    /// τ̂, detached.
+    hats: Tensor,
+    grid: QuantileGrid,
+    /// Z(s, a, τ̂) (B, N).
+    z: Tensor,
+    /// The twin's features and Z₂(s, a, τ̂) (twin critics only).
+    twin: Option<(Tensor, Tensor)>,
+}
+
+/// The fraction, policy and temperature losses with their gradients.
+struct ActorSide {
+    fraction_loss: Tensor,
+    policy_loss: Tensor,
+    alpha_loss: Tensor,
+    g_fraction: candle_core::backprop::GradStore,
+    g_policy: candle_core::backprop::GradStore,
+    g_alpha: candle_core::backprop::GradStore,
+    /// −E[log π(ã|s)].
+    entropy: f64,
 }
 
 /// The learner's trainable state: networks, optimisers, temperature, RNG.
@@ -227,19 +265,30 @@ impl Dsac {
     /// caller's thread.
     pub fn update(&mut self, batch: &Batch) -> Result<UpdateStats> {
         if batch.action.device().is_cpu() {
-            pednav_nets::cpu::on_pool_worker(|| self.update_here(batch))
+            pednav_nets::cpu::on_pool_worker(|| self.update_here(batch, true))
         } else {
-            self.update_here(batch)
+            self.update_here(batch, false)
         }
     }
 
-    fn update_here(&mut self, batch: &Batch) -> Result<UpdateStats> {
+    /// The update; independent parts of it side by side where `split` (see
+    /// [`pednav_nets::cpu::join_if`]), with the same numbers either way.
+    fn update_here(&mut self, batch: &Batch, split: bool) -> Result<UpdateStats> {
         let c = self.cfg.clone();
         let alpha = self.alpha()?;
-        let nets = &self.nets;
         let dev = batch.action.device().clone();
         let bsz = batch.action.dims()[0];
+        // The policy's two noise draws in the order the update has always made them
+        // (a′ for the target, then ã), before any work is split over threads.
+        let eps_next = standard_normal(&mut self.rng, bsz, &dev)?;
+        let eps_pi = standard_normal(&mut self.rng, bsz, &dev)?;
+        let nets = &self.nets;
         let eta = &batch.weight;
+        let log_alpha = self.log_alpha.vars()[0].1.as_tensor();
+        // Independent parts of the update run side by side on the pool, so that one
+        // part's serial element-wise work fills the other's waits; every tensor is
+        // computed by the same ops as in sequence.
+        let split = split && dev.is_cpu();
 
         // Encoders: o_t (with gradients) and o_{t+1} (for the TD target) in one pass
         // over each transition's frames where the encoder allows it.
@@ -251,55 +300,62 @@ impl Dsac {
             next_obs,
         } = nets.transition_features(&batch.transitions)?;
 
-        // TD target (no gradients).
-        let next_policy = nets.policy.head(&next_policy_features.detach())?;
-        let next = next_policy.sample(&standard_normal(&mut self.rng, bsz, &dev)?)?;
-        let (a_next, logp_next) = (next.action.detach(), next.log_prob.detach());
-        let next_fr = nets.fraction.fractions(&next_fraction_features.detach(), &a_next)?;
-        let (next_hats, next_widths) = (next_fr.hats.detach(), next_fr.widths.detach());
-        let target_features = nets.target_features(&next_obs)?.detach();
-        let mut z_next = nets.target.grid(&target_features, &a_next)?.at(&next_hats)?.detach();
-        if let Some(twin) = &nets.twin {
-            let f2 = features_of(&twin.target.encoder, &next_obs, Some(&target_features))?.detach();
-            let z2 = twin.target.grid(&f2, &a_next)?.at(&next_hats)?.detach();
-            z_next = smaller_mean(&z_next, &z2, &next_widths)?;
-        }
-        let soft = z_next.broadcast_sub(&(logp_next * alpha)?.unsqueeze(1)?)?;
-        // γⁿ: the batch's rewards are n-step returns bootstrapping from o_{t+n}.
-        let not_done = (batch.done.neg()? + 1.0)?;
-        let discount = c.gamma.powi(batch.n_step as i32);
-        let target = soft
-            .broadcast_mul(&(not_done * discount)?.unsqueeze(1)?)?
-            .broadcast_add(&batch.reward.unsqueeze(1)?)?
-            .detach();
+        // The TD target (no gradients) beside the critics' forward pass.
+        let td_target = || -> Result<TdTarget> {
+            let next_policy = nets.policy.head(&next_policy_features.detach())?;
+            let next = next_policy.sample(&eps_next)?;
+            let (a_next, logp_next) = (next.action.detach(), next.log_prob.detach());
+            let next_fr = nets.fraction.fractions(&next_fraction_features.detach(), &a_next)?;
+            let (next_hats, widths) = (next_fr.hats.detach(), next_fr.widths.detach());
+            let features = nets.target_features(&next_obs)?.detach();
+            let mut z_next = nets.target.grid(&features, &a_next)?.at(&next_hats)?.detach();
+            if let Some(twin) = &nets.twin {
+                let f2 = features_of(&twin.target.encoder, &next_obs, Some(&features))?.detach();
+                let z2 = twin.target.grid(&f2, &a_next)?.at(&next_hats)?.detach();
+                z_next = smaller_mean(&z_next, &z2, &widths)?;
+            }
+            let soft = z_next.broadcast_sub(&(logp_next * alpha)?.unsqueeze(1)?)?;
+            // γⁿ: the batch's rewards are n-step returns bootstrapping from o_{t+n}.
+            let not_done = (batch.done.neg()? + 1.0)?;
+            let discount = c.gamma.powi(batch.n_step as i32);
+            let values = soft
+                .broadcast_mul(&(not_done * discount)?.unsqueeze(1)?)?
+                .broadcast_add(&batch.reward.unsqueeze(1)?)?
+                .detach();
+            Ok(TdTarget { values, widths, features })
+        };
+        let critics_forward = || -> Result<CriticsForward> {
+            let fr = nets.fraction.fractions(&feats.fraction, &batch.action)?;
+            let hats = fr.hats.detach();
+            let grid = nets.quantile.grid(&feats.quantile, &batch.action)?;
+            let z = grid.at(&hats)?;
+            // The twin's features: its own encoder's, or the shared encoder's *with*
+            // their graph, so that both critic losses train a shared encoder.
+            let twin = match &nets.twin {
+                Some(t) => {
+                    let f2 = match &t.quantile.encoder {
+                        Some(e) => e.encode(&obs)?,
+                        None => feats.quantile.clone(),
+                    };
+                    let z2 = t.quantile.grid(&f2, &batch.action)?.at(&hats)?;
+                    Some((f2, z2))
+                }
+                None => None,
+            };
+            Ok(CriticsForward { fr, hats, grid, z, twin })
+        };
+        let (td, critics) = pednav_nets::cpu::join_if(split, td_target, critics_forward);
+        let (td, CriticsForward { fr, hats, grid, z, twin }) = (td?, critics?);
 
         // Critic.
-        let fr = nets.fraction.fractions(&feats.fraction, &batch.action)?;
-        let hats = fr.hats.detach();
-        let grid = nets.quantile.grid(&feats.quantile, &batch.action)?;
-        let z = grid.at(&hats)?;
         let mut critic_loss =
-            weighted_mean(&quantile_huber_loss(&z, &target, &hats, &next_widths, c.huber_kappa)?, eta)?;
+            weighted_mean(&quantile_huber_loss(&z, &td.values, &hats, &td.widths, c.huber_kappa)?, eta)?;
         let mut q_batch = (&z.detach() * fr.widths.detach())?.sum(D::Minus1)?;
-        // The twin's features: its own encoder's, or the shared encoder's *with* their
-        // graph, so that both critic losses train a shared encoder.
-        let twin = match &nets.twin {
-            Some(t) => Some((
-                t,
-                match &t.quantile.encoder {
-                    Some(e) => e.encode(&obs)?,
-                    None => feats.quantile.clone(),
-                },
-            )),
-            None => None,
-        };
-        if let Some((twin, f2)) = &twin {
-            let z2 = twin.quantile.grid(f2, &batch.action)?.at(&hats)?;
-            let loss2 = weighted_mean(&quantile_huber_loss(&z2, &target, &hats, &next_widths, c.huber_kappa)?, eta)?;
+        if let Some((_, z2)) = &twin {
+            let loss2 = weighted_mean(&quantile_huber_loss(z2, &td.values, &hats, &td.widths, c.huber_kappa)?, eta)?;
             critic_loss = (critic_loss + loss2)?;
             q_batch = q_batch.minimum(&(&z2.detach() * fr.widths.detach())?.sum(D::Minus1)?)?;
         }
-        let q_mean = q_batch.mean_all()?.to_scalar::<f32>()? as f64;
 
         // State prediction (auxiliary): through the quantile net's encoder.
         let state_loss = match (&nets.state_head, &batch.state_target) {
@@ -325,47 +381,69 @@ impl Dsac {
         // Temporal contrast (self-supervised): o_t's online features against the
         // target encoder's o_{t+n} features of the batch.
         let contrast_loss = match &nets.contrast_head {
-            Some(head) => Some(head.info_nce(&feats.quantile, &target_features)?),
+            Some(head) => Some(head.info_nce(&feats.quantile, &td.features)?),
             None => None,
         };
-
-        // Fraction proposal (quantile values detached; gradient through τ only).
-        let n = fr.taus.dims()[1] - 1;
-        let fixed = QuantileGrid { values: grid.values.detach(), intervals: grid.intervals };
-        let inner = fr.taus.narrow(1, 1, n - 1)?;
-        let grad_w1 = fraction_gradient(&fixed.at(&inner.detach())?, &fixed.at(&hats)?)?.detach();
-        let mut fraction_per = (grad_w1 * &inner)?.sum(D::Minus1)?;
-        if c.fraction_entropy != 0.0 {
-            fraction_per = (fraction_per - (&fr.entropy * c.fraction_entropy)?)?;
+        let mut critic_objective = critic_loss.clone();
+        if let Some(l) = &state_loss {
+            critic_objective = (critic_objective + (l * c.state_aux_weight)?)?;
         }
-        let fraction_loss = weighted_mean(&fraction_per, eta)?;
-
-        // Policy (critic features and fractions detached; gradient through ã).
-        let pi = nets.policy.head(&feats.policy)?.sample(&standard_normal(&mut self.rng, bsz, &dev)?)?;
-        let new_fr = nets.fraction.fractions(&feats.fraction.detach(), &pi.action.detach())?;
-        let z_new = nets.quantile.grid(&feats.quantile.detach(), &pi.action)?.at(&new_fr.hats.detach())?;
-        let mut q_new = (z_new * new_fr.widths.detach())?.sum(D::Minus1)?;
-        if let Some((twin, f2)) = &twin {
-            let z2_new = twin.quantile.grid(&f2.detach(), &pi.action)?.at(&new_fr.hats.detach())?;
-            q_new = q_new.minimum(&(z2_new * new_fr.widths.detach())?.sum(D::Minus1)?)?;
+        if let Some(l) = &contrast_loss {
+            critic_objective = (critic_objective + (l * c.contrast_weight)?)?;
         }
-        let policy_loss = weighted_mean(&((&pi.log_prob * alpha)? - q_new)?, eta)?;
 
-        // Temperature.
-        let log_alpha = self.log_alpha.vars()[0].1.as_tensor();
-        let gap = (pi.log_prob.detach() + c.target_entropy)?;
-        let alpha_loss = weighted_mean(&gap.broadcast_mul(log_alpha)?, eta)?.neg()?;
-        let entropy = -(pi.log_prob.detach().mean_all()?.to_scalar::<f32>()? as f64);
+        // The critics' gradients (through the encoder: the update's largest pass)
+        // beside the fraction, policy and temperature losses and their gradients.
+        let actor_side = || -> Result<ActorSide> {
+            // Fraction proposal (quantile values detached; gradient through τ only).
+            let n = fr.taus.dims()[1] - 1;
+            let fixed = QuantileGrid { values: grid.values.detach(), intervals: grid.intervals };
+            let inner = fr.taus.narrow(1, 1, n - 1)?;
+            let grad_w1 = fraction_gradient(&fixed.at(&inner.detach())?, &fixed.at(&hats)?)?.detach();
+            let mut fraction_per = (grad_w1 * &inner)?.sum(D::Minus1)?;
+            if c.fraction_entropy != 0.0 {
+                fraction_per = (fraction_per - (&fr.entropy * c.fraction_entropy)?)?;
+            }
+            let fraction_loss = weighted_mean(&fraction_per, eta)?;
+
+            // Policy (critic features and fractions detached; gradient through ã).
+            let pi = nets.policy.head(&feats.policy)?.sample(&eps_pi)?;
+            let new_fr = nets.fraction.fractions(&feats.fraction.detach(), &pi.action.detach())?;
+            let z_new = nets.quantile.grid(&feats.quantile.detach(), &pi.action)?.at(&new_fr.hats.detach())?;
+            let mut q_new = (z_new * new_fr.widths.detach())?.sum(D::Minus1)?;
+            if let (Some(t), Some((f2, _))) = (&nets.twin, &twin) {
+                let z2_new = t.quantile.grid(&f2.detach(), &pi.action)?.at(&new_fr.hats.detach())?;
+                q_new = q_new.minimum(&(z2_new * new_fr.widths.detach())?.sum(D::Minus1)?)?;
+            }
+            let policy_loss = weighted_mean(&((&pi.log_prob * alpha)? - q_new)?, eta)?;
+
+            // Temperature.
+            let gap = (pi.log_prob.detach() + c.target_entropy)?;
+            let alpha_loss = weighted_mean(&gap.broadcast_mul(log_alpha)?, eta)?.neg()?;
+            let entropy = -(pi.log_prob.detach().mean_all()?.to_scalar::<f32>()? as f64);
+            Ok(ActorSide {
+                g_fraction: fraction_loss.backward()?,
+                g_policy: policy_loss.backward()?,
+                g_alpha: alpha_loss.backward()?,
+                fraction_loss,
+                policy_loss,
+                alpha_loss,
+                entropy,
+            })
+        };
+        let (g_critic, actor) = pednav_nets::cpu::join_if(split, || critic_objective.backward(), actor_side);
+        let (g_critic, actor) = (g_critic?, actor?);
+        let q_mean = q_batch.mean_all()?.to_scalar::<f32>()? as f64;
 
         let scalar = |t: &Tensor| -> Result<f64> { Ok(t.to_scalar::<f32>()? as f64) };
         let critics = if nets.twin.is_some() { 2.0 } else { 1.0 };
         let mut stats = UpdateStats {
             critic_loss: scalar(&critic_loss)? / critics,
-            policy_loss: scalar(&policy_loss)?,
-            fraction_loss: scalar(&fraction_loss)?,
-            alpha_loss: scalar(&alpha_loss)?,
+            policy_loss: scalar(&actor.policy_loss)?,
+            fraction_loss: scalar(&actor.fraction_loss)?,
+            alpha_loss: scalar(&actor.alpha_loss)?,
             alpha,
-            entropy,
+            entropy: actor.entropy,
             q_mean,
             state_loss: state_loss.as_ref().map(scalar).transpose()?.unwrap_or(0.0),
             contrast_loss: contrast_loss.as_ref().map(scalar).transpose()?.unwrap_or(0.0),
@@ -384,23 +462,12 @@ impl Dsac {
         if !losses_finite {
             return Ok(self.skip(stats, "non-finite loss"));
         }
-        let mut critic_objective = critic_loss;
-        if let Some(l) = &state_loss {
-            critic_objective = (critic_objective + (l * c.state_aux_weight)?)?;
-        }
-        if let Some(l) = &contrast_loss {
-            critic_objective = (critic_objective + (l * c.contrast_weight)?)?;
-        }
-        let g_critic = critic_objective.backward()?;
-        let g_fraction = fraction_loss.backward()?;
-        let g_policy = policy_loss.backward()?;
-        let g_alpha = alpha_loss.backward()?;
         // Each optimiser with its gradients; the twin critic's from the same critic loss.
         let mut steps: Vec<(&mut AdamW, &candle_core::backprop::GradStore)> = vec![
             (&mut self.opt_quantile, &g_critic),
-            (&mut self.opt_fraction, &g_fraction),
-            (&mut self.opt_policy, &g_policy),
-            (&mut self.opt_alpha, &g_alpha),
+            (&mut self.opt_fraction, &actor.g_fraction),
+            (&mut self.opt_policy, &actor.g_policy),
+            (&mut self.opt_alpha, &actor.g_alpha),
         ];
         if let Some(opt) = &mut self.opt_quantile2 {
             steps.push((opt, &g_critic));
@@ -435,5 +502,56 @@ impl Dsac {
         tracing::warn!(update = self.updates, skipped = self.skipped, "{why}: update skipped, weights unchanged");
         stats.skipped = true;
         stats
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::device_check::fill_replay;
+    use crate::replay::{DualReplay, FrameKind, ReplayConfig};
+    use pednav_nets::ParamStore;
+
+    fn values(stores: &[&ParamStore]) -> Vec<Vec<f32>> {
+        let mut out = Vec::new();
+        for store in stores {
+            for (_, v) in store.vars() {
+                out.push(v.flatten_all().unwrap().to_vec1().unwrap());
+            }
+        }
+        out
+    }
+
+    /// The parts of an update run side by side give bit for bit the update run in
+    /// sequence: pixels with a shared encoder, twin critics and the contrastive loss
+    /// (the CPU preset), and separate encoders (the twin with its own) with the
+    /// state-prediction head.
+    #[test]
+    fn split_update_equals_the_sequential_one_bit_for_bit() {
+        let recipe =
+            DsacConfig { batch_size: 16, warmup: 16, twin_critics: true, contrast_weight: 1.0, ..Default::default() };
+        let state_head = DsacConfig { contrast_weight: 0.0, state_aux_weight: 0.5, ..recipe.clone() };
+        let nets = NetsConfig { image_size: 42, history: 8, ..Default::default() };
+        for (cfg, nets) in [(recipe, NetsConfig { shared_encoder: true, ..nets.clone() }), (state_head, nets)] {
+            let kind = FrameKind::Pixels { size: 42 };
+            let rc = ReplayConfig { nonterminal_capacity: 200, terminal_capacity: 50 };
+            let mut replay = DualReplay::new(&rc, kind, nets.history, &Device::Cpu).unwrap();
+            if cfg.builds_state_head() {
+                replay = replay.with_state_targets(nets.state_dim).unwrap();
+            }
+            let mut rng = ChaCha8Rng::seed_from_u64(3);
+            fill_replay(&mut replay, kind, 150, &mut rng).unwrap();
+            let new = || Dsac::new(&cfg, &nets, &Device::Cpu, 5).unwrap();
+            let (mut split, mut sequential) = (new(), new());
+            for _ in 0..2 {
+                let batch = replay.sample(cfg.batch_size, &mut rng).unwrap();
+                let a = pednav_nets::cpu::on_pool_worker(|| split.update_here(&batch, true)).unwrap();
+                let b = pednav_nets::cpu::on_pool_worker(|| sequential.update_here(&batch, false)).unwrap();
+                assert!(!a.skipped);
+                assert_eq!(a, b);
+            }
+            let stores = |d: &Dsac| values(&d.nets.stores().into_iter().chain([&d.log_alpha]).collect::<Vec<_>>());
+            assert_eq!(stores(&split), stores(&sequential));
+        }
     }
 }

@@ -101,6 +101,17 @@ pub fn on_pool_worker<R: Send>(f: impl FnOnce() -> R + Send) -> R {
     rayon::scope(|_| f())
 }
 
+/// `a` and `b` side by side on rayon's pool where `parallel` (the CPU), one after
+/// the other otherwise (a CUDA context is bound per thread); the results as `(a, b)`.
+///
+/// Why: much of a learner update is serial element-wise work between parallel
+/// kernels; two independent parts of it joined this way let one part's serial work
+/// run while the other waits, with each part's numbers unchanged (every op is
+/// computed as in sequence; only which thread computes it differs).
+pub fn join_if<A: Send, B: Send>(parallel: bool, a: impl FnOnce() -> A + Send, b: impl FnOnce() -> B + Send) -> (A, B) {
+    if parallel { rayon::join(a, b) } else { (a(), b()) }
+}
+
 #[cfg(target_env = "gnu")]
 fn tune_malloc() {
     // Keep buffers up to 1 GiB in the heap and never trim it back eagerly.

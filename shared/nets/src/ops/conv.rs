@@ -57,12 +57,12 @@ mod gemm_call;
 mod geometry;
 mod pool;
 
-use candle_core::{CpuStorage, CustomOp3, Layout, Shape, Storage, Tensor};
+use candle_core::{CpuStorage, CustomOp3, Layout, Shape, Tensor};
 use gemm::Parallelism;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
-use super::Isa;
+use super::{Isa, cpu_f32, with_cpu_f32};
 pub use amx::{AMX_ENV, amx_available};
 pub use bf16::{bf16_available, cpu_has_bf16};
 use geometry::{Geometry, col2im_add, im2col};
@@ -210,7 +210,7 @@ fn min_len(batch: usize) -> usize {
 
 fn forward(g: &Geometry, x: &[f32], w: &[f32], bias: &[f32]) -> Vec<f32> {
     let (ks, co, rows) = (g.ks(), g.co, g.to * g.ps());
-    let mut out = vec![0f32; g.b * g.out_len()];
+    let mut out = pool::parallel_zeros(g.b * g.out_len());
     let par = inner_parallelism(g.b);
     let pointwise = g.spatially_pointwise();
     let direct = g.direct();
@@ -344,7 +344,7 @@ fn backward(
     } else {
         0
     };
-    let mut dx = if need_dx { vec![0f32; g.b * g.in_len()] } else { Vec::new() };
+    let mut dx = if need_dx { pool::parallel_zeros(g.b * g.in_len()) } else { Vec::new() };
     let in_len = g.in_len().max(1);
     let out_len = g.out_len().max(1);
 
@@ -473,27 +473,6 @@ fn backward(
             .reduce(new_scratch, merge)
     };
     (need_dx.then_some(dx), total.dw, total.db)
-}
-
-pub(super) fn cpu_f32<'a>(s: &'a CpuStorage, l: &Layout, what: &str) -> candle_core::Result<&'a [f32]> {
-    let data = s.as_slice::<f32>()?;
-    match l.contiguous_offsets() {
-        Some((a, b)) => Ok(&data[a..b]),
-        None => candle_core::bail!("conv: {what} must be contiguous"),
-    }
-}
-
-/// Run `f` on the contiguous CPU f32 data of `t`.
-pub(crate) fn with_cpu_f32<R>(
-    t: &Tensor,
-    what: &str,
-    f: impl FnOnce(&[f32]) -> candle_core::Result<R>,
-) -> candle_core::Result<R> {
-    let (storage, layout) = t.storage_and_layout();
-    match &*storage {
-        Storage::Cpu(s) => f(cpu_f32(s, layout, what)?),
-        _ => candle_core::bail!("conv: the custom kernel runs on the CPU only ({what} is on another device)"),
-    }
 }
 
 /// The custom op. Use [`conv`] rather than this directly.

@@ -54,7 +54,7 @@ use candle_core::{CpuStorage, InplaceOp2, Layout, Tensor};
 use rayon::prelude::*;
 
 use super::Isa;
-use super::conv::{cpu_f32, with_cpu_f32};
+use super::{cpu_f32, with_cpu_f32};
 
 /// Arrays this long or longer are split over the rayon pool (candle's own threshold
 /// for its element-wise ops).

@@ -16,7 +16,8 @@
 use candle_core::{CpuStorage, CustomOp3, Layout, Shape, Tensor};
 use gemm::Parallelism;
 
-use super::conv::{cpu_f32, matmul_new, with_cpu_f32};
+use super::conv::matmul_new;
+use super::{cpu_f32, with_cpu_f32};
 
 /// Largest batch that takes the row-streaming kernel rather than gemm.
 pub const GEMV_ROWS: usize = 8;

@@ -1,6 +1,7 @@
 //! Operations candle 0.11 lacks or runs slowly here: the channel-last convolution
 //! kernel, a fully connected layer fast at one row, the optimiser's in-place
 //! element-wise steps ([`fused`]), softplus, a fast frames-to-channels transpose,
+//! the CPU storage accessors the custom ops share,
 //! and a few numerically careful helpers.
 
 /// Define `fn $name<const …>(isa: Isa, args)` that runs `$imp::<…, FMA>` compiled
@@ -47,7 +48,7 @@ pub mod isa;
 pub mod linear;
 mod simd;
 
-use candle_core::{Result, Tensor};
+use candle_core::{CpuStorage, Layout, Result, Storage, Tensor};
 use rayon::prelude::*;
 
 pub use conv::{ConvSpec, conv, conv_reference};
@@ -89,6 +90,28 @@ pub fn log_one_minus_tanh_sq(u: &Tensor) -> Result<Tensor> {
     ((u.neg()? - sp)? + std::f64::consts::LN_2)? * 2.0
 }
 
+/// The contiguous f32 data of a CPU storage (`what` names it in the error).
+pub(crate) fn cpu_f32<'a>(s: &'a CpuStorage, l: &Layout, what: &str) -> candle_core::Result<&'a [f32]> {
+    let data = s.as_slice::<f32>()?;
+    match l.contiguous_offsets() {
+        Some((a, b)) => Ok(&data[a..b]),
+        None => candle_core::bail!("{what} must be contiguous"),
+    }
+}
+
+/// Run `f` on the contiguous CPU f32 data of `t`.
+pub(crate) fn with_cpu_f32<R>(
+    t: &Tensor,
+    what: &str,
+    f: impl FnOnce(&[f32]) -> candle_core::Result<R>,
+) -> candle_core::Result<R> {
+    let (storage, layout) = t.storage_and_layout();
+    match &*storage {
+        Storage::Cpu(s) => f(cpu_f32(s, layout, what)?),
+        _ => candle_core::bail!("the custom kernels run on the CPU only ({what} is on another device)"),
+    }
+}
+
 /// Frames (B, T, H, W) as one T-channel image each: (B, 1, H, W, T), the
 /// frame-stacking encoder's channel-last input.
 ///
@@ -103,7 +126,7 @@ pub fn frames_to_channels_last(frames: &Tensor) -> Result<Tensor> {
     }
     let p = h * w;
     let mut dst = vec![0f32; b * t * p];
-    conv::with_cpu_f32(&frames.contiguous()?, "frames", |src| {
+    with_cpu_f32(&frames.contiguous()?, "frames", |src| {
         dst.par_chunks_mut((t * p).max(1))
             .zip(src.par_chunks((t * p).max(1)))
             .for_each(|(out, sample)| transpose_block_rows(sample, out, t, p));

@@ -10,6 +10,8 @@
 //! goes back to the pool of the thread that drops it, which keeps at most
 //! `POOL_SIZE` buffers (a fuller pool keeps the larger ones).
 
+use rayon::prelude::*;
+
 thread_local! {
     /// Scratch buffers of this thread (column matrices, padded inputs, masked
     /// gradients), kept between calls: allocating and zeroing up to megabytes per
@@ -120,4 +122,21 @@ impl Drop for Pooled {
             }
         });
     }
+}
+
+/// `n` zeros, written in parallel on rayon's pool for a long vector: a layer's
+/// output or input gradient (megabytes at a learner's batch) is zeroed by every
+/// worker instead of serially by the thread about to call the kernel (that serial
+/// fill, `vec![0.0; n]`, was ≈ 3 % each of a learner update's main thread on the Xeon).
+pub(super) fn parallel_zeros(n: usize) -> Vec<f32> {
+    /// Floats per task (64 KiB); shorter vectors are zeroed in one go.
+    const CHUNK: usize = 1 << 14;
+    if n < 2 * CHUNK {
+        return vec![0.0; n];
+    }
+    let mut v: Vec<f32> = Vec::with_capacity(n);
+    v.spare_capacity_mut()[..n].par_chunks_mut(CHUNK).for_each(|c| c.fill(std::mem::MaybeUninit::new(0.0)));
+    // SAFETY: the capacity holds n floats and all n were written just above.
+    unsafe { v.set_len(n) };
+    v
 }
