@@ -107,7 +107,9 @@ pub fn on_pool_worker<R: Send>(f: impl FnOnce() -> R + Send) -> R {
 /// Why: much of a learner update is serial element-wise work between parallel
 /// kernels; two independent parts of it joined this way let one part's serial work
 /// run while the other waits, with each part's numbers unchanged (every op is
-/// computed as in sequence; only which thread computes it differs).
+/// computed as in sequence; only which thread computes it differs). As with
+/// [`on_pool_worker`], neither part may hold a lock that the pool's other jobs take:
+/// a worker waiting for its half runs other jobs meanwhile.
 pub fn join_if<A: Send, B: Send>(parallel: bool, a: impl FnOnce() -> A + Send, b: impl FnOnce() -> B + Send) -> (A, B) {
     if parallel { rayon::join(a, b) } else { (a(), b()) }
 }
