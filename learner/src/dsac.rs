@@ -53,7 +53,23 @@ use pednav_config::DsacConfig;
 
 /// Quantile Huber loss per sample (B): (1/N) Σᵢ Σⱼ wⱼ·|τ̂ᵢ − 1{δᵢⱼ < 0}|·H_κ(δᵢⱼ)/κ
 /// with δᵢⱼ = yⱼ − zᵢ; `pred` (B, N), `target` (B, N′), `taus` (B, N), `weights` (B, N′).
+/// On the CPU, with no gradient wanted through `target`, `taus` or `weights` (the
+/// update's case), one op computes it ([`crate::quantile_huber`]); otherwise candle's ops.
 pub fn quantile_huber_loss(
+    pred: &Tensor,
+    target: &Tensor,
+    taus: &Tensor,
+    weights: &Tensor,
+    kappa: f64,
+) -> Result<Tensor> {
+    match crate::quantile_huber::fused(pred, target, taus, weights, kappa)? {
+        Some(loss) => Ok(loss),
+        None => quantile_huber_composed(pred, target, taus, weights, kappa),
+    }
+}
+
+/// [`quantile_huber_loss`] from candle's ops (any device; gradients through every input).
+pub(crate) fn quantile_huber_composed(
     pred: &Tensor,
     target: &Tensor,
     taus: &Tensor,

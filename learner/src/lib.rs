@@ -8,6 +8,7 @@ pub mod checkpoint;
 pub mod device_check;
 pub mod dsac;
 pub mod error;
+mod quantile_huber;
 pub mod rate;
 pub mod replay;
 
