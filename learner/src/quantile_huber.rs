@@ -93,10 +93,7 @@ impl CustomOp1 for QuantileHuber {
     }
 
     fn cpu_fwd(&self, storage: &CpuStorage, layout: &Layout) -> candle_core::Result<(CpuStorage, Shape)> {
-        let pred = match layout.contiguous_offsets() {
-            Some((start, end)) => &storage.as_slice::<f32>()?[start..end],
-            None => candle_core::bail!("quantile Huber loss: the predictions must be contiguous"),
-        };
+        let pred = pednav_nets::ops::cpu_f32(storage, layout, "quantile Huber loss: the predictions")?;
         let rows = self.per_quantile(pred, |d| self.huber(d));
         let scale = 1.0 / (self.n as f32 * self.kappa);
         let loss: Vec<f32> = rows.chunks_exact(self.n).map(|r| r.iter().sum::<f32>() * scale).collect();

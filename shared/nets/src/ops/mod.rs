@@ -90,8 +90,9 @@ pub fn log_one_minus_tanh_sq(u: &Tensor) -> Result<Tensor> {
     ((u.neg()? - sp)? + std::f64::consts::LN_2)? * 2.0
 }
 
-/// The contiguous f32 data of a CPU storage (`what` names it in the error).
-pub(crate) fn cpu_f32<'a>(s: &'a CpuStorage, l: &Layout, what: &str) -> candle_core::Result<&'a [f32]> {
+/// The contiguous f32 data of a CPU storage (`what` names it in the error), for a
+/// custom op's CPU forward (here and in the learner's).
+pub fn cpu_f32<'a>(s: &'a CpuStorage, l: &Layout, what: &str) -> candle_core::Result<&'a [f32]> {
     let data = s.as_slice::<f32>()?;
     match l.contiguous_offsets() {
         Some((a, b)) => Ok(&data[a..b]),
