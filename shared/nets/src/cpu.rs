@@ -1,9 +1,17 @@
 //! Process-wide CPU settings for fast training, applied from inside the process so
 //! no user has to export environment variables.
 //!
-//! - glibc malloc: by default large buffers are `mmap`ed and returned to the OS on
-//!   free, so every training step pays page faults for its activations (measured
-//!   2–2.6× slower, docs/design.md §8). Raising the mmap and trim thresholds keeps them in the heap.
+//! - the heap: every process that links this crate allocates through mimalloc
+//!   ([`ALLOCATOR`]), and [`init_cpu_runtime`] tells it never to return freed memory
+//!   to the OS (`mi_option_purge_delay` = −1), so an update's activations reuse the
+//!   pages of the last update's instead of being page-faulted in anew. glibc's malloc
+//!   could not do that for threads other than the main one: each allocates from its
+//!   own arena of 64 MiB heaps, which glibc unmaps as soon as one is empty, and a
+//!   larger block is `mmap`ed and unmapped on free (its mmap and trim thresholds and
+//!   `M_MMAP_MAX` notwithstanding). With it, `dsac_update` case (a) (84², 100 MB
+//!   activations on rayon's workers) took 2.9 M page faults and spent 20 % of its
+//!   samples in them; one glibc arena for all threads fixed that but slowed the 42²
+//!   cases (lock contention). Measured: docs/results/compute-xeon-amx/allocator/.
 //! - rayon: one global pool with one worker per available core (the convolution
 //!   kernel and candle's gemm both use it).
 //! - candle's CPU matmul asks for its thread count on every call, and unless
@@ -53,7 +61,7 @@ pub const CANDLE_THREADS: usize = 1;
 /// docs for what is skipped otherwise).
 pub fn init_cpu_runtime(threads: Option<usize>) -> usize {
     *INIT.get_or_init(|| {
-        tune_malloc();
+        tune_allocator();
         let n = threads.unwrap_or_else(|| std::thread::available_parallelism().map(|n| n.get()).unwrap_or(1)).max(1);
         if process_threads() == Some(1) {
             // SAFETY: this is the process's only thread, so nothing reads or writes the
@@ -114,19 +122,23 @@ pub fn join_if<A: Send, B: Send>(parallel: bool, a: impl FnOnce() -> A + Send, b
     if parallel { rayon::join(a, b) } else { (a(), b()) }
 }
 
-#[cfg(target_env = "gnu")]
-fn tune_malloc() {
-    // Keep buffers up to 1 GiB in the heap and never trim it back eagerly.
-    const MMAP_THRESHOLD: libc::c_int = 1 << 30;
-    // SAFETY: mallopt only changes allocator tuning parameters.
-    unsafe {
-        libc::mallopt(libc::M_MMAP_THRESHOLD, MMAP_THRESHOLD);
-        libc::mallopt(libc::M_TRIM_THRESHOLD, MMAP_THRESHOLD);
+/// The Rust heap of every process that links this crate (see the module docs).
+#[global_allocator]
+pub static ALLOCATOR: mimalloc::MiMalloc = mimalloc::MiMalloc;
+
+/// mimalloc's `mi_option_purge_delay` (its `mi_option_t` enum; `libmimalloc-sys`
+/// names no constant for it). The test `allocator_keeps_freed_memory` checks that
+/// this index holds the purge delay's default (1,000 ms in mimalloc v3) before it is set.
+pub const MI_OPTION_PURGE_DELAY: libmimalloc_sys::mi_option_t = 15;
+
+/// Never purge (unless the user set `MIMALLOC_PURGE_DELAY`, which mimalloc reads itself).
+fn tune_allocator() {
+    if std::env::var_os("MIMALLOC_PURGE_DELAY").is_none() {
+        // SAFETY: mi_option_set only stores an option's value; mimalloc reads it on
+        // every purge decision.
+        unsafe { libmimalloc_sys::mi_option_set(MI_OPTION_PURGE_DELAY, -1) };
     }
 }
-
-#[cfg(not(target_env = "gnu"))]
-fn tune_malloc() {}
 
 /// Threads of this process (`/proc/self/status`), if the system says.
 fn process_threads() -> Option<usize> {

@@ -2,6 +2,7 @@
 //! convolution kernel, heads, networks and encoders, the streaming cache and AdamW.
 
 mod adamw;
+mod allocator;
 mod common;
 mod conv;
 mod encoders;
