@@ -5,8 +5,9 @@
 //! - step records and episode reports of the local actors → the link, each actor on
 //!   its own key, with congestion control *Block*, in the order the actor sent them;
 //! - the learner's acknowledgement tables and the weights ← the link, newest wins,
-//!   republished on the local services (the newest weights are asked for at once, so a
-//!   host that joins late acts on the current policy from its first step);
+//!   republished on the local services (the newest weights are asked for when the
+//!   bridge starts and whenever the learner host comes back on the link, so a host
+//!   that joins late or whose link returns acts on the current policy at once);
 //! - the curriculum service's acknowledgements of episode reports ← the link, newest
 //!   wins, republished on the local service the actors read them from (while the
 //!   learner host is away no report is put on the link: each actor holds its reports
@@ -123,7 +124,8 @@ pub fn run_actor_host(opts: &ActorHostOptions, stop: &StopFlag) -> Result<Bridge
                 .map_err(link_err("liveliness subscription"))?
         },
     );
-    ask_for_newest_weights(&session, &keys, &weights);
+    let asked_weights = Latest::<ZBytes>::new();
+    ask_for_newest_weights(&session, &keys, &asked_weights);
 
     let mut out = Outbound {
         session: &session,
@@ -156,9 +158,13 @@ pub fn run_actor_host(opts: &ActorHostOptions, stop: &StopFlag) -> Result<Bridge
             }
         }
         busy |= forward_report_acks(&report_acks, &report_acks_out, &tally)?;
-        if let Some(bytes) = weights.take() {
-            busy = true;
-            publish_weights(&ipc, &bytes, &mut weights_out, &tally)?;
+        // The answer to an ask, then the broadcast: each is published only if newer
+        // than the last weights published.
+        for slot in [&asked_weights, &weights] {
+            if let Some(bytes) = slot.take() {
+                busy = true;
+                publish_weights(&ipc, &bytes, &mut weights_out, &tally)?;
+            }
         }
         busy |= forward_tasks(&session, &keys, &tasks_in, &mut tasks, &tally)?;
         // Heartbeats: the local actors' out; the learner host's processes' in.
@@ -182,6 +188,7 @@ pub fn run_actor_host(opts: &ActorHostOptions, stop: &StopFlag) -> Result<Bridge
             learner_seen = alive;
             if alive {
                 tracing::info!("the learner host is on the link");
+                ask_for_newest_weights(&session, &keys, &asked_weights);
             } else {
                 Tally::add(&tally.hosts_gone, 1);
                 tracing::warn!(
@@ -345,15 +352,24 @@ fn link_for<'a>(
     Ok(&links[&actor])
 }
 
-/// Ask the learner host for the newest weights (a late joiner acts on the current
-/// policy at once); no answer is not an error — the next broadcast brings them.
+/// Ask the learner host for the newest weights, without waiting: the answer lands in
+/// `slot` (its own, so it cannot displace a broadcast not yet taken). Asked when the
+/// bridge starts and whenever the learner host comes (back) on the link, so a late
+/// joiner and a host whose link returns act on the current policy at once; no answer
+/// is not an error — the next broadcast brings them.
 fn ask_for_newest_weights(session: &zenoh::Session, keys: &Keys, slot: &Latest<ZBytes>) {
-    let Ok(replies) = session.get(keys.weights()).timeout(Duration::from_secs(5)).wait() else { return };
-    if let Ok(reply) = replies.recv_timeout(Duration::from_secs(5))
-        && let Some(reply) = reply
-        && let Ok(sample) = reply.into_result()
-    {
-        slot.put(sample.payload().clone());
+    let slot = slot.clone();
+    let asked = session
+        .get(keys.weights())
+        .timeout(Duration::from_secs(5))
+        .callback(move |reply| {
+            if let Ok(sample) = reply.result() {
+                slot.put(sample.payload().clone());
+            }
+        })
+        .wait();
+    if let Err(e) = asked {
+        tracing::debug!("asking the learner host for the newest weights: {e}");
     }
 }
 
