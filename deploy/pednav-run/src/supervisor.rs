@@ -19,6 +19,7 @@ use std::path::PathBuf;
 use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result};
+use pednav_bridge::HostTable;
 use pednav_nets::DeviceSpec;
 use pednav_runtime::ipc::HeartbeatSubscriber;
 use pednav_runtime::messages::{Heartbeat, ProcessKind};
@@ -28,7 +29,7 @@ use crate::child::{Proc, stop_all};
 
 pub(crate) use crate::child::{MAX_RESTARTS, RESTART_WINDOW};
 
-/// A remote actor whose heartbeats stopped this long ago is not counted on the progress line.
+/// A remote actor whose heartbeats stopped this long ago counts as dead on the progress line.
 const REMOTE_SILENCE: Duration = Duration::from_secs(10);
 
 /// Which of a run's processes this host runs.
@@ -89,6 +90,8 @@ pub struct Supervisor {
     actors: Vec<Proc>,
     /// The local actors' global ids.
     local_ids: std::ops::Range<u32>,
+    /// The host table of a learner host that lets actor hosts join.
+    hosts_file: Option<PathBuf>,
     /// The newest heartbeat of each (kind, id).
     latest: BTreeMap<(ProcessKind, u32), Heartbeat>,
     /// When each (kind, id) last sent one (cleared when its process restarts).
@@ -203,6 +206,8 @@ impl Supervisor {
             bridge,
             actors,
             local_ids,
+            hosts_file: matches!(&plan.role, HostRole::Learner { listen, .. } if !listen.is_empty())
+                .then(|| dir.root().join(pednav_bridge::HOSTS_FILE)),
             latest: BTreeMap::new(),
             last_beat: BTreeMap::new(),
             hang: Duration::from_secs_f64(cfg.runtime.hang_secs),
@@ -316,11 +321,13 @@ impl Supervisor {
             self.last_line = Instant::now();
             let restarts: u32 = self.services.iter().chain(self.bridge.iter()).map(|p| p.total_restarts).sum();
             let mut line = progress_line(self.started.elapsed(), &self.latest, &self.actors, restarts);
-            let remote = self.remote_actors();
-            if remote > 0 {
-                line.push_str(&format!(" | remote actors {remote}"));
-            }
-            let extras = [self.budget_progress(), self.faults_line(), self.backoff_line(), self.learner_host_line()];
+            let extras = [
+                self.remote_actors_line(),
+                self.budget_progress(),
+                self.faults_line(),
+                self.backoff_line(),
+                self.learner_host_line(),
+            ];
             for extra in extras.into_iter().flatten() {
                 line.push_str(" | ");
                 line.push_str(&extra);
@@ -406,15 +413,18 @@ impl Supervisor {
         })
     }
 
-    /// Actors whose heartbeats reach this host through the bridge (other hosts'), seen
-    /// within the last [`REMOTE_SILENCE`].
-    fn remote_actors(&self) -> usize {
-        self.last_beat
-            .iter()
-            .filter(|(k, t)| {
-                k.0 == ProcessKind::ACTOR && !self.local_ids.contains(&k.1) && t.elapsed() < REMOTE_SILENCE
-            })
-            .count()
+    /// On a learner host that lets actor hosts join: the joined hosts' actors heard
+    /// within the last [`REMOTE_SILENCE`], of the ids granted to them (`hosts.json`).
+    fn remote_actors_line(&self) -> Option<String> {
+        let table = match HostTable::load(self.hosts_file.as_ref()?) {
+            Ok(table) => table?,
+            Err(e) => return Some(format!("remote actors unknown ({e})")),
+        };
+        let heard = |id: u32| {
+            !self.local_ids.contains(&id)
+                && self.last_beat.get(&(ProcessKind::ACTOR, id)).is_some_and(|t| t.elapsed() < REMOTE_SILENCE)
+        };
+        remote_actors_summary(&table, heard)
     }
 
     /// Actors first, then the bridge, then the learner (final checkpoint) and the
@@ -436,6 +446,29 @@ impl Supervisor {
         stop_all(&mut refs, Duration::from_secs(300));
         self.ipc.cleanup_dead_nodes();
     }
+}
+
+/// `remote actors 14/16 (silent: gpu-b)`: of the actor ids granted to joined hosts,
+/// those `heard`, and the hosts none of whose actors is heard. A host that left the
+/// link counts as its actors dead, as a dead local actor does; `None` before any host
+/// joined.
+fn remote_actors_summary(table: &HostTable, heard: impl Fn(u32) -> bool) -> Option<String> {
+    let (mut granted, mut alive, mut silent) = (0, 0, Vec::new());
+    for host in table.remote() {
+        let n = host.ids().filter(|&id| heard(id)).count();
+        granted += host.actors as usize;
+        alive += n;
+        if n == 0 {
+            silent.push(host.name.as_str());
+        }
+    }
+    (granted > 0).then(|| {
+        let mut line = format!("remote actors {alive}/{granted}");
+        if !silent.is_empty() {
+            line.push_str(&format!(" (silent: {})", silent.join(", ")));
+        }
+        line
+    })
 }
 
 /// The launcher's progress line; `service_restarts` counts the learner's and the
@@ -468,4 +501,24 @@ fn progress_line(
         actors.len(),
         restarts
     )
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn remote_actors_count_against_the_granted_ids_and_silent_hosts_are_named() {
+        let mut table = HostTable::new(2, 256).unwrap();
+        assert_eq!(remote_actors_summary(&table, |_| true), None, "no host joined yet");
+        table.join("gpu-a", 3).unwrap(); // ids 2..5
+        table.join("gpu-b", 2).unwrap(); // ids 5..7
+        // The local actors (0, 1) are not counted, whether heard or not.
+        assert_eq!(remote_actors_summary(&table, |id| id != 3).as_deref(), Some("remote actors 4/5"));
+        assert_eq!(remote_actors_summary(&table, |id| id < 5).as_deref(), Some("remote actors 3/5 (silent: gpu-b)"));
+        assert_eq!(
+            remote_actors_summary(&table, |_| false).as_deref(),
+            Some("remote actors 0/5 (silent: gpu-a, gpu-b)")
+        );
+    }
 }

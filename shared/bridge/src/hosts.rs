@@ -22,6 +22,9 @@ use crate::error::{BridgeError, Result};
 /// The name the learner host's own actors are listed under.
 pub const LOCAL: &str = "local";
 
+/// The table's file in the learner host's run directory.
+pub const HOSTS_FILE: &str = "hosts.json";
+
 /// One host and its actor ids.
 #[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -75,6 +78,11 @@ impl HostTable {
     /// Actor ids held by all hosts together.
     pub fn actors(&self) -> u32 {
         self.hosts.iter().map(|h| h.actors).sum()
+    }
+
+    /// The hosts that joined (every host but the learner host's own actors).
+    pub fn remote(&self) -> impl Iterator<Item = &Host> {
+        self.hosts.iter().filter(|h| h.name != LOCAL)
     }
 
     /// Give the host `name` ids for `actors` actors: its own again when it joined

@@ -42,6 +42,7 @@ use zenoh::sample::SampleKind;
 
 use crate::error::{BridgeError, Result};
 use crate::forward::{BridgeStats, IDLE, LEARNER_HOST, Latest, LocalRun, STATS_EVERY, Tally, link_err, refuse};
+use crate::hosts::HOSTS_FILE;
 use crate::join::{JOIN_KEY, JoinDesk, JoinRequest, key_safe_name};
 use crate::link::{Keys, LinkConfig};
 use crate::remote::{Inbound, RemoteActors, WorkerSetup};
@@ -84,7 +85,7 @@ pub fn run_learner_host(opts: &LearnerHostOptions, stop: &StopFlag) -> Result<Br
     let config_path = local.dir.config_path();
     let config_toml = std::fs::read_to_string(&config_path)
         .map_err(|source| BridgeError::Io { path: config_path.clone(), source })?;
-    let mut desk = JoinDesk::open(&local.dir.root().join("hosts.json"), &run, config_toml, opts.local_actors)?;
+    let mut desk = JoinDesk::open(&local.dir.root().join(HOSTS_FILE), &run, config_toml, opts.local_actors)?;
     let session = opts.link.open()?;
     let ipc = local.ipc("bridge", stop)?;
     let acks_in = ipc.ack_subscriber()?;
