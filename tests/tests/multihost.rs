@@ -227,6 +227,12 @@ fn bad_endpoints_and_unreachable_learner_hosts_are_refused_naming_the_fix() {
     assert!(no_actors.contains("--actors") && no_actors.contains("--listen"), "{no_actors}");
     let udp = refused(&["launch", "--config", cfg, "--run-dir", rd, "--listen", "udp/127.0.0.1:7447"]);
     assert!(udp.contains("--listen udp/127.0.0.1:7447") && udp.contains("tcp/HOST:PORT"), "{udp}");
+    // A port another learner host (here: this test) holds stops the launch before it starts anything.
+    let held = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
+    let taken = format!("tcp/127.0.0.1:{}", held.local_addr().unwrap().port());
+    let busy = refused(&["launch", "--config", cfg, "--run-dir", rd, "--actors", "0", "--listen", &taken]);
+    assert!(busy.contains(&format!("--listen {taken}")) && busy.contains("another learner host"), "{busy}");
+    drop(held);
     let multicast = refused(&["join", "--connect", "tcp/224.0.0.224:7446", "--run-dir", rd]);
     assert!(multicast.contains("multicast"), "{multicast}");
     // Nothing listens on this port: the join fails within its timeout, saying what to check.

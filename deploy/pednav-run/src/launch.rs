@@ -139,6 +139,7 @@ pub fn launch(args: Launch) -> Result<()> {
     let tls = tls.files()?;
     if !listen.is_empty() {
         pednav_bridge::LinkConfig::listening(&listen).with_tls(tls.clone()).check()?;
+        check_listen_free(&listen)?;
     } else if tls.is_some() {
         bail!("--tls-ca, --tls-cert and --tls-key secure the link to actor hosts: give --listen tls/HOST:PORT too");
     }
@@ -254,4 +255,20 @@ pub fn default_bin_dir() -> Result<PathBuf> {
 fn pid_alive(pid: i32) -> bool {
     // SAFETY: signal 0 only checks for existence.
     pid > 0 && unsafe { libc::kill(pid, 0) } == 0
+}
+
+/// Every `--listen` endpoint can be bound now (a probe, released at once), so a port
+/// that a second learner host or another program holds stops the launch before any
+/// process starts, instead of a bridge that fails and restarts.
+fn check_listen_free(listen: &[String]) -> Result<()> {
+    for endpoint in listen {
+        let address = endpoint.strip_prefix("tcp/").or_else(|| endpoint.strip_prefix("tls/")).unwrap_or(endpoint);
+        if let Err(e) = std::net::TcpListener::bind(address) {
+            bail!(
+                "--listen {endpoint}: cannot listen there ({e}) — is another learner host, or another program, on \
+                 this port? Stop it or choose another port"
+            );
+        }
+    }
+    Ok(())
 }

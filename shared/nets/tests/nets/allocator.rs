@@ -1,8 +1,6 @@
 //! The heap keeps freed memory for reuse: `init_cpu_runtime` sets mimalloc's purge
 //! delay to −1 (never purge), through an option index `libmimalloc-sys` does not name.
 
-use std::process::Command;
-
 use pednav_nets::cpu::MI_OPTION_PURGE_DELAY;
 use pednav_nets::init_cpu_runtime;
 
@@ -15,18 +13,11 @@ const THIS_TEST: &str = "allocator::allocator_keeps_freed_memory";
 #[test]
 fn allocator_keeps_freed_memory() {
     if std::env::var_os(CHILD).is_none() {
-        let exe = std::env::current_exe().expect("the test binary's path");
-        let out = Command::new(exe)
-            .args(["--exact", THIS_TEST, "--test-threads", "1"])
-            .env(CHILD, "1")
-            .env_remove("MIMALLOC_PURGE_DELAY")
-            .output()
-            .expect("start the test binary again");
-        let stdout = String::from_utf8_lossy(&out.stdout);
-        assert!(
-            out.status.success(),
-            "{THIS_TEST} failed in its own process:\n{stdout}\n{}",
-            String::from_utf8_lossy(&out.stderr)
+        let stdout = crate::common::run_self(
+            &["--exact", THIS_TEST, "--test-threads", "1"],
+            &[(CHILD, "1")],
+            &["MIMALLOC_PURGE_DELAY"],
+            &format!("in {THIS_TEST}'s own process"),
         );
         assert!(stdout.contains("test result: ok. 1 passed"), "{THIS_TEST} did not run in its own process:\n{stdout}");
         return;
