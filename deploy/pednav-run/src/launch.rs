@@ -262,7 +262,8 @@ fn pid_alive(pid: i32) -> bool {
 /// process starts, instead of a bridge that fails and restarts.
 fn check_listen_free(listen: &[String]) -> Result<()> {
     for endpoint in listen {
-        let address = endpoint.strip_prefix("tcp/").or_else(|| endpoint.strip_prefix("tls/")).unwrap_or(endpoint);
+        // Checked as tcp/ or tls/ just before (`LinkConfig::check`).
+        let address = pednav_bridge::link::endpoint_address(endpoint).unwrap_or(endpoint);
         if let Err(e) = std::net::TcpListener::bind(address) {
             bail!(
                 "--listen {endpoint}: cannot listen there ({e}) — is another learner host, or another program, on \

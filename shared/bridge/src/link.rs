@@ -237,13 +237,18 @@ pub fn close(session: zenoh::Session) {
     }
 }
 
+/// The `HOST:PORT` of a `tcp/` or `tls/` endpoint (`None` for any other protocol).
+pub fn endpoint_address(endpoint: &str) -> Option<&str> {
+    endpoint.strip_prefix("tcp/").or_else(|| endpoint.strip_prefix("tls/"))
+}
+
 /// Check one endpoint given to `flag`: `tcp/HOST:PORT` with a port, and an address
 /// that names one host (not multicast; not unspecified or port 0 for `--connect`).
 pub fn check_endpoint(flag: &str, endpoint: &str) -> Result<()> {
     let refuse = |problem: &str| {
         Err(BridgeError::Endpoint { flag: flag.to_string(), endpoint: endpoint.to_string(), problem: problem.into() })
     };
-    let Some(address) = endpoint.strip_prefix("tcp/").or_else(|| endpoint.strip_prefix("tls/")) else {
+    let Some(address) = endpoint_address(endpoint) else {
         return refuse("use tcp/HOST:PORT, or tls/HOST:PORT with --tls-ca, --tls-cert and --tls-key");
     };
     if address.contains(['#', '?']) {
