@@ -325,7 +325,10 @@ impl ActorProcess {
             let flags = StepFlags::NONE
                 .with_if(StepFlags::TERMINAL, t.terminated)
                 .with_if(StepFlags::TRUNCATED, t.truncated)
-                .with_if(StepFlags::COLLIDED, t.collided);
+                .with_if(StepFlags::COLLIDED, t.collided)
+                .with_if(StepFlags::VEHICLE_HIT, t.safety.vehicle_hit)
+                .with_if(StepFlags::DONT_WALK_ENTRY, t.safety.dont_walk_entry)
+                .with_if(StepFlags::PEDESTRIAN_BUMP, t.safety.pedestrian_bump);
             let header = StepHeader {
                 actor: self.actor,
                 env: e as u32,
@@ -352,7 +355,7 @@ impl ActorProcess {
             ep.points.push(EpisodePoint { x: t.pose.x, y: t.pose.y, yaw: t.pose.yaw, reward: t.reward });
             ep.ret.add(t.reward);
             if t.terminated || t.truncated {
-                ended.push((e, t.terminated, t.truncated));
+                ended.push((e, t.reached_goal(), t.truncated));
             }
         }
         drop(frames);

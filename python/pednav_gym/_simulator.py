@@ -46,6 +46,11 @@ INFO_FIELDS: dict[str, type] = {
     "reward_map": float,
     "reward_speed": float,
     "reward_collision": float,
+    "reward_traffic": float,
+    "vehicle_hit": bool,
+    "dont_walk_entry": bool,
+    "pedestrian_bump": bool,
+    "kerb_wait": bool,
 }
 
 
@@ -184,11 +189,16 @@ def single_info(batch: _pednav.StepBatch, env: int) -> dict[str, Any]:
         "head_yaw_deg": float(batch.head_yaw_deg[env]),
         "region": str(batch.region[env]),
         "step": int(batch.step[env]),
-        "success": bool(batch.terminated[env]),
+        "success": bool(batch.terminated[env]) and not bool(batch.vehicle_hit[env]),
         "collided": bool(batch.collided[env]),
         "reward_map": float(batch.reward_map[env]),
         "reward_speed": float(batch.reward_speed[env]),
         "reward_collision": float(batch.reward_collision[env]),
+        "reward_traffic": float(batch.reward_traffic[env]),
+        "vehicle_hit": bool(batch.vehicle_hit[env]),
+        "dont_walk_entry": bool(batch.dont_walk_entry[env]),
+        "pedestrian_bump": bool(batch.pedestrian_bump[env]),
+        "kerb_wait": bool(batch.kerb_wait[env]),
     }
 
 
@@ -208,11 +218,16 @@ def vector_info(batch: _pednav.StepBatch, reported: np.ndarray) -> dict[str, Any
         "head_yaw_deg": np.asarray(batch.head_yaw_deg, dtype=np.float64),
         "region": np.array(batch.region, dtype=object),
         "step": np.asarray(batch.step, dtype=np.int64),
-        "success": np.asarray(batch.terminated, dtype=np.bool_),
+        "success": np.asarray(batch.terminated, dtype=np.bool_) & ~np.asarray(batch.vehicle_hit, dtype=np.bool_),
         "collided": np.asarray(batch.collided, dtype=np.bool_),
         "reward_map": np.asarray(batch.reward_map, dtype=np.float64),
         "reward_speed": np.asarray(batch.reward_speed, dtype=np.float64),
         "reward_collision": np.asarray(batch.reward_collision, dtype=np.float64),
+        "reward_traffic": np.asarray(batch.reward_traffic, dtype=np.float64),
+        "vehicle_hit": np.asarray(batch.vehicle_hit, dtype=np.bool_),
+        "dont_walk_entry": np.asarray(batch.dont_walk_entry, dtype=np.bool_),
+        "pedestrian_bump": np.asarray(batch.pedestrian_bump, dtype=np.bool_),
+        "kerb_wait": np.asarray(batch.kerb_wait, dtype=np.bool_),
     }
     info: dict[str, Any] = {}
     for key, column in columns.items():

@@ -7,7 +7,9 @@
 //! neither terminated, truncated nor collided. Every environment reports its pose, head
 //! yaw, step count and region as they are after the call. The reward's parts come from
 //! the [`Rewards`](pednav_sim::Rewards) methods whose sum the pedestrian's step pays, so
-//! `reward == (reward_map + reward_speed) + reward_collision` in `f32`, bit for bit.
+//! `reward == ((reward_map + reward_speed) + reward_collision) + reward_traffic` in
+//! `f32`, bit for bit (`reward_traffic` is 0 without traffic, so the last addition
+//! changes nothing there).
 
 use pednav_sim::{Action, Transition, VecEnv, command_of};
 use pyo3::prelude::*;
@@ -29,8 +31,19 @@ pub struct StepBatch {
     pub terminated: Vec<bool>,
     /// The step reached `t_max` without the goal (bootstrap).
     pub truncated: Vec<bool>,
-    /// The character controller reported a hit during the step.
+    /// The character controller reported a hit during the step (or, with traffic,
+    /// the agent ran into a walker or a vehicle).
     pub collided: Vec<bool>,
+    /// Traffic: the vehicle-hit reward (0 without a hit).
+    pub reward_traffic: Vec<f32>,
+    /// Traffic: a vehicle hit the agent (the episode ends, terminated, not a success).
+    pub vehicle_hit: Vec<bool>,
+    /// Traffic: the agent stepped onto a zebra that did not show WALK.
+    pub dont_walk_entry: Vec<bool>,
+    /// Traffic: the agent bumped into another pedestrian.
+    pub pedestrian_bump: Vec<bool>,
+    /// Traffic: the agent stood waiting at a kerb.
+    pub kerb_wait: Vec<bool>,
     /// Body position x after the call, metres.
     pub x: Vec<f32>,
     /// Body position y after the call, metres.
@@ -57,17 +70,19 @@ impl StepBatch {
         let rewards = world.scene.rewards();
         let mut batch = StepBatch::default();
         for (env, outcome) in stepped.iter().enumerate() {
-            let (reward, parts, flags) = match outcome {
+            let hit_reward = world.traffic.as_ref().map_or(0.0, |(t, _)| t.vehicle_hit);
+            let (reward, parts, flags, safety) = match outcome {
                 Some((action, t)) => {
                     let speed = command_of(*action, &world.config).speed;
                     let parts = [
-                        rewards.map_reward(t.region),
+                        rewards.map_reward(t.paid_region()),
                         rewards.speed_reward(speed),
                         rewards.collision_reward(t.collided),
+                        if t.safety.vehicle_hit { hit_reward } else { 0.0 },
                     ];
-                    (t.reward, parts, [t.terminated, t.truncated, t.collided])
+                    (t.reward, parts, [t.terminated, t.truncated, t.collided], t.safety)
                 }
-                None => (0.0, [0.0; 3], [false; 3]),
+                None => (0.0, [0.0; 4], [false; 3], Default::default()),
             };
             batch.reward.push(reward);
             batch.reward_map.push(parts[0]);
@@ -76,6 +91,11 @@ impl StepBatch {
             batch.terminated.push(flags[0]);
             batch.truncated.push(flags[1]);
             batch.collided.push(flags[2]);
+            batch.reward_traffic.push(parts[3]);
+            batch.vehicle_hit.push(safety.vehicle_hit);
+            batch.dont_walk_entry.push(safety.dont_walk_entry);
+            batch.pedestrian_bump.push(safety.pedestrian_bump);
+            batch.kerb_wait.push(safety.kerb_wait);
             let p = envs.pedestrian(env);
             batch.x.push(p.pose.x);
             batch.y.push(p.pose.y);

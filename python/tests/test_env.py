@@ -86,6 +86,22 @@ def test_info_carries_the_rewards_parts_which_sum_to_the_reward() -> None:
     env.close()
 
 
+def test_traffic_is_a_keyword_and_its_safety_events_are_in_info() -> None:
+    env = make(obs_mode="state", start="validation", t_max=800, traffic="heavy", traffic_non_yielding=1.0)
+    check_env(env.unwrapped, skip_render_check=True)
+    _, info = env.reset(seed=4, options={"start": (0.0, -2.5, 90.0)})  # standing in a lane of the crossing box
+    assert {"vehicle_hit", "dont_walk_entry", "pedestrian_bump", "kerb_wait", "reward_traffic"} <= set(info)
+    for _ in range(800):
+        _, reward, terminated, truncated, info = env.step(np.array([-1.0, 0.0, 0.0], dtype=np.float32))
+        parts = np.float32(info["reward_map"]) + np.float32(info["reward_speed"])
+        assert (parts + np.float32(info["reward_collision"])) + np.float32(info["reward_traffic"]) == np.float32(reward)
+        if terminated or truncated:
+            break
+    assert terminated and info["vehicle_hit"] and not info["success"], "no vehicle reached an agent standing in its lane"
+    assert info["reward_traffic"] == -100.0
+    env.close()
+
+
 def test_a_step_on_the_goal_side_sidewalk_pays_its_region_and_the_speed() -> None:
     env = make(obs_mode="state", start="first_task")
     env.reset(seed=0)

@@ -62,8 +62,8 @@ pub struct CurriculumConfig {
     /// there the networks a run starts with walk on and arrive, and their best
     /// 30-episode means reached −9.5 (state) and −12 (pixels) when fast episodes report
     /// first, above the paper's −25; a policy that learned the task makes ≈ +5 to +8
-    /// (the oracle +8.5). Runs trained before the calibration ran at −25 and say so in
-    /// their `config.toml`.
+    /// (the oracle +8.5, a figure no kept file backs). Runs trained before the calibration
+    /// ran at −25 and say so in their `config.toml`.
     pub pass_threshold: f32,
     /// Candidate tasks drawn to fit μ and σ (adaptive filtering). Table IV: 4096.
     pub candidates: usize,

@@ -100,6 +100,7 @@ struct Running {
     ret: DiscountedReturn,
     steps: u32,
     trajectory: Vec<[f32; 2]>,
+    safety: pednav_sim::traffic::SafetyCounts,
 }
 
 /// The networks of a run's checkpoint, on `device` (checkpoints load on any device,
@@ -160,6 +161,7 @@ impl Evaluator {
             ret: DiscountedReturn::new(self.gamma as f64),
             steps: 0,
             trajectory: vec![[pose.x, pose.y]],
+            safety: Default::default(),
         });
         Ok(())
     }
@@ -255,6 +257,7 @@ impl Evaluator {
                 r.ret.add(t.reward);
                 r.steps += 1;
                 r.trajectory.push([t.pose.x, t.pose.y]);
+                r.safety.add(&t.safety);
                 if let Some(o) = observer.as_deref_mut() {
                     o.transition(e, t.reward, (t.terminated || t.truncated).then_some(t.terminated))?;
                 }
@@ -266,9 +269,10 @@ impl Evaluator {
                             yaw_deg: done.task.yaw_deg,
                             run: done.task.run,
                             discounted_return: done.ret.value() as f32,
-                            success: t.terminated,
+                            success: t.reached_goal(),
                             steps: done.steps,
                             trajectory: done.trajectory,
+                            safety: self.world.traffic.is_some().then_some(done.safety),
                         });
                         progress(results.len());
                     }
@@ -309,6 +313,7 @@ impl Evaluator {
             r.ret.add(t.reward);
             r.steps += 1;
             r.trajectory.push([t.pose.x, t.pose.y]);
+            r.safety.add(&t.safety);
             if t.terminated || t.truncated {
                 let done = running[0].take().expect("running");
                 film.save(out)?;
@@ -317,9 +322,10 @@ impl Evaluator {
                     yaw_deg: task.yaw_deg,
                     run: task.run,
                     discounted_return: done.ret.value() as f32,
-                    success: t.terminated,
+                    success: t.reached_goal(),
                     steps: done.steps,
                     trajectory: done.trajectory,
+                    safety: self.world.traffic.is_some().then_some(done.safety),
                 });
             }
             view = if pixels { Some(self.envs.render()?.frame(0)) } else { None };

@@ -35,6 +35,8 @@ pub struct EpisodeResult {
     pub steps: u32,
     /// Positions visited (x, y), start first.
     pub trajectory: Vec<[f32; 2]>,
+    /// Safety counts of the episode; `None` with traffic off.
+    pub safety: Option<pednav_sim::traffic::SafetyCounts>,
 }
 
 /// One row of the table.
@@ -46,7 +48,8 @@ pub struct PointRow {
     pub episodes: usize,
     /// Mean discounted return.
     pub mean: f64,
-    /// Population standard deviation of the discounted return.
+    /// Sample standard deviation (n − 1 in the denominator, [`mean_and_sample_std`]) of
+    /// the discounted return; 0 for a single episode.
     pub std: f64,
     /// Fraction of episodes that reached the goal.
     pub success_rate: f64,
@@ -188,11 +191,27 @@ impl Table {
     }
 }
 
-/// Write every episode as CSV.
+/// Write every episode as CSV; with traffic, each episode's safety counts follow
+/// (`vehicle_hits,dont_walk_entries,pedestrian_bumps,vehicle_bumps,kerb_wait_steps`).
 pub fn write_results_csv(results: &[EpisodeResult], path: &Path) -> Result<()> {
-    let mut s = String::from("point,yaw_deg,run,discounted_return,success,steps\n");
+    let traffic = results.iter().any(|r| r.safety.is_some());
+    let mut s = String::from("point,yaw_deg,run,discounted_return,success,steps");
+    s.push_str(if traffic {
+        ",vehicle_hits,dont_walk_entries,pedestrian_bumps,vehicle_bumps,kerb_wait_steps\n"
+    } else {
+        "\n"
+    });
     for r in results {
-        let _ = writeln!(s, "{},{},{},{:.4},{},{}", r.point, r.yaw_deg, r.run, r.discounted_return, r.success, r.steps);
+        let _ = write!(s, "{},{},{},{:.4},{},{}", r.point, r.yaw_deg, r.run, r.discounted_return, r.success, r.steps);
+        if traffic {
+            let c = r.safety.unwrap_or_default();
+            let _ = write!(
+                s,
+                ",{},{},{},{},{}",
+                c.vehicle_hits, c.dont_walk_entries, c.pedestrian_bumps, c.vehicle_bumps, c.kerb_wait_steps
+            );
+        }
+        s.push('\n');
     }
     std::fs::write(path, s).map_err(|e| ExperimentError::file(path, e))
 }
@@ -277,7 +296,16 @@ mod tests {
     use super::*;
 
     fn r(point: u32, g: f32, success: bool) -> EpisodeResult {
-        EpisodeResult { point, yaw_deg: 0.0, run: 0, discounted_return: g, success, steps: 10, trajectory: vec![] }
+        EpisodeResult {
+            point,
+            yaw_deg: 0.0,
+            run: 0,
+            discounted_return: g,
+            success,
+            steps: 10,
+            trajectory: vec![],
+            safety: None,
+        }
     }
 
     #[test]

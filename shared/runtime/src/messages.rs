@@ -48,12 +48,19 @@ impl StepFlags {
     pub const NONE: StepFlags = StepFlags(0);
     /// First step of an episode: the frame is the reset observation; action and reward are unused.
     pub const FIRST: StepFlags = StepFlags(1);
-    /// The goal was reached with this step (no bootstrapping).
+    /// The episode ended with this step without bootstrapping: the goal was reached,
+    /// or (with traffic) a vehicle hit the agent ([`StepFlags::VEHICLE_HIT`] then set too).
     pub const TERMINAL: StepFlags = StepFlags(2);
     /// The episode hit T_max with this step (bootstrapping).
     pub const TRUNCATED: StepFlags = StepFlags(4);
     /// The agent collided during this step.
     pub const COLLIDED: StepFlags = StepFlags(8);
+    /// Traffic: a vehicle hit the agent in this step (the episode ends, terminal).
+    pub const VEHICLE_HIT: StepFlags = StepFlags(16);
+    /// Traffic: the agent stepped onto a zebra that did not show WALK.
+    pub const DONT_WALK_ENTRY: StepFlags = StepFlags(32);
+    /// Traffic: the agent bumped into another pedestrian.
+    pub const PEDESTRIAN_BUMP: StepFlags = StepFlags(64);
 
     /// These flags and `other`'s when `on`, else these.
     #[must_use]

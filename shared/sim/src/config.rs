@@ -25,6 +25,30 @@ pub enum ObsMode {
     State,
 }
 
+/// How much traffic the crossing carries: vehicles, signals and other pedestrians
+/// (the numbers of each level are the scene's `[traffic.levels]`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize, clap::ValueEnum)]
+#[serde(rename_all = "snake_case")]
+pub enum TrafficLevel {
+    /// An empty intersection: no vehicle, no signal, no other pedestrian (the
+    /// paper's task; every figure before traffic existed).
+    #[default]
+    Off,
+    /// Light traffic (reference scene: 200 vehicles/h/lane, 4 walkers).
+    Light,
+    /// Medium traffic (reference scene: 450 vehicles/h/lane, 8 walkers).
+    Medium,
+    /// Heavy traffic, near a lane's capacity (reference scene: 750 vehicles/h/lane, 16 walkers).
+    Heavy,
+}
+
+impl TrafficLevel {
+    /// Is there any traffic?
+    pub fn is_on(self) -> bool {
+        self != TrafficLevel::Off
+    }
+}
+
 /// Settings of the pedestrian simulator. Defaults are the paper's (§IV) and docs/design.md §3.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
@@ -57,6 +81,19 @@ pub struct SimConfig {
     /// Randomise brightness, contrast and haze of the rendering per episode (from the
     /// episode seed). Off by default, as in the paper.
     pub domain_randomization: bool,
+    /// Traffic at the crossing: `"off"` (default), `"light"`, `"medium"` or
+    /// `"heavy"` — signals, vehicles and other pedestrians from the scene's
+    /// `[traffic]` section.
+    pub traffic: TrafficLevel,
+    /// Overrides the level's vehicle arrivals per lane, vehicles/h (0–2400).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub traffic_flow: Option<f32>,
+    /// Overrides the level's number of other pedestrians (0–64).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub traffic_walkers: Option<u32>,
+    /// Overrides the scene's share of drivers who do not yield at zebras (0–1).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub traffic_non_yielding: Option<f32>,
 }
 
 impl Default for SimConfig {
@@ -74,6 +111,10 @@ impl Default for SimConfig {
             image_size: 84,
             obs_mode: ObsMode::Pixels,
             domain_randomization: false,
+            traffic: TrafficLevel::Off,
+            traffic_flow: None,
+            traffic_walkers: None,
+            traffic_non_yielding: None,
         }
     }
 }
@@ -124,6 +165,19 @@ impl SimConfig {
         )?;
         check(self.fov_deg > 10.0 && self.fov_deg < 170.0, "fov_deg", self.fov_deg, "must lie in (10, 170) degrees")?;
         check((8..=1024).contains(&self.image_size), "image_size", self.image_size, "must lie in [8, 1024] pixels")?;
+        if let Some(f) = self.traffic_flow {
+            if let Err((_, m)) = crate::traffic::check_level(f, 0) {
+                return Err(SimError::Config { field: "traffic_flow", value: f.to_string(), message: m });
+            }
+        }
+        if let Some(w) = self.traffic_walkers {
+            if let Err((_, m)) = crate::traffic::check_level(0.0, w) {
+                return Err(SimError::Config { field: "traffic_walkers", value: w.to_string(), message: m });
+            }
+        }
+        if let Some(n) = self.traffic_non_yielding {
+            check((0.0..=1.0).contains(&n), "traffic_non_yielding", n, "must lie in [0, 1]")?;
+        }
         Ok(())
     }
 }

@@ -33,9 +33,16 @@ use std::sync::Arc;
 use crate::config::ObsMode;
 use crate::error::{Result, SimError};
 use crate::pedestrian::{Action, Pedestrian, Transition};
-use crate::render::{BackendChoice, CameraView, Frames, Look, Renderer, RendererConfig};
+use crate::render::dynamic::FAR_DISTANCE;
+use crate::render::mesh::part_visible_circle;
+use crate::render::{
+    BackendChoice, CameraView, DynamicBatch, Frames, Instance, Look, Prototype, Renderer, RendererConfig,
+};
 use crate::scene::{Pose, RegionKind};
 use crate::state_obs::{STATE_OBS_DIM, state_observation};
+use crate::traffic::{
+    HeadKind, PEDESTRIAN_HEAD, SafetyEvents, TrafficState, VEHICLE_HEAD, VehicleSignal, VehicleStyle,
+};
 use crate::world::SimWorld;
 
 /// M pedestrians sharing one world and one renderer.
@@ -46,6 +53,9 @@ pub struct VecEnv {
     renderer: Option<Renderer>,
     transitions: Vec<Transition>,
     cameras: Vec<CameraView>,
+    /// Each environment's traffic (all `None` with traffic off).
+    traffic: Vec<Option<TrafficState>>,
+    batch: DynamicBatch,
 }
 
 impl VecEnv {
@@ -72,6 +82,8 @@ impl VecEnv {
             renderer,
             transitions: Vec::with_capacity(num_envs),
             cameras: Vec::with_capacity(num_envs),
+            traffic: vec![None; num_envs],
+            batch: DynamicBatch::default(),
             world,
         })
     }
@@ -97,6 +109,11 @@ impl VecEnv {
         self.world.scene.check_task(task)?;
         self.peds[env].reset(task);
         self.looks[env] = if self.world.config.domain_randomization { Look::randomized(seed) } else { Look::default() };
+        if let Some((traffic, settings)) = &self.world.traffic {
+            let cfg = &self.world.config;
+            self.traffic[env] =
+                Some(TrafficState::new(traffic, *settings, seed, [task.x, task.y], cfg.agent_radius, cfg.dt));
+        }
         Ok(())
     }
 
@@ -114,8 +131,18 @@ impl VecEnv {
             }
         }
         self.transitions.clear();
-        for (p, a) in self.peds.iter_mut().zip(actions) {
-            self.transitions.push(p.step(*a, &self.world));
+        match &self.world.traffic {
+            None => {
+                for (p, a) in self.peds.iter_mut().zip(actions) {
+                    self.transitions.push(p.step(*a, &self.world));
+                }
+            }
+            Some((traffic, _)) => {
+                for ((p, a), state) in self.peds.iter_mut().zip(actions).zip(self.traffic.iter_mut()) {
+                    let state = state.as_mut().expect("an environment with traffic is reset before it is stepped");
+                    self.transitions.push(p.step_in_traffic(*a, &self.world, traffic, state));
+                }
+            }
         }
         Ok(&self.transitions)
     }
@@ -137,12 +164,105 @@ impl VecEnv {
         }
     }
 
+    /// The traffic of environment `env` (`None` with traffic off or before its first reset).
+    pub fn traffic(&self, env: usize) -> Option<&TrafficState> {
+        self.traffic[env].as_ref()
+    }
+
+    /// The moving things environment `env`'s camera `c` can see, into the batch's open view.
+    fn add_instances(&mut self, env: usize, c: &CameraView, fov: f32) {
+        let (Some((traffic, _)), Some(state)) = (&self.world.traffic, &self.traffic[env]) else { return };
+        let visible = |p: [f32; 2], r: f32| part_visible_circle(p, r, c.x, c.y, c.yaw, fov);
+        // Vehicles wholly beyond the world's edge stand behind its boundary walls
+        // (queues form out there): not drawn unless taller than the walls.
+        let extent = &self.world.scene.extent;
+        let wall = self.world.scene.spec.wall_height;
+        let hidden = |p: [f32; 2], r: f32, height: f32| {
+            height <= wall
+                && (p[0] + r < extent.min[0]
+                    || p[0] - r > extent.max[0]
+                    || p[1] + r < extent.min[1]
+                    || p[1] - r > extent.max[1])
+        };
+        for (lane, lt) in traffic.lanes.iter().zip(&state.lanes) {
+            let yaw = lane.yaw();
+            for v in &lt.vehicles {
+                let p = v.center(lane);
+                let r = 0.5 * v.length.hypot(v.width);
+                if hidden(p, r, v.height) || !visible(p, r + 0.5) {
+                    continue;
+                }
+                let far = (p[0] - c.x).hypot(p[1] - c.y) > FAR_DISTANCE;
+                let proto = match traffic.kinds[v.kind as usize].style {
+                    _ if far => Prototype::Far,
+                    VehicleStyle::Car => Prototype::Car,
+                    VehicleStyle::Boxy => Prototype::Boxy,
+                };
+                self.batch.push(
+                    proto,
+                    Instance { pose: [p[0], p[1], 0.0, yaw], size: [v.length, v.width, v.height, v.tint] },
+                );
+            }
+        }
+        let r = traffic.walkers.radius;
+        for w in &state.walkers {
+            if visible(w.pos, 1.0) {
+                let size = [1.2 * r, 1.7 * r, 1.7, w.tint];
+                let far = (w.pos[0] - c.x).hypot(w.pos[1] - c.y) > FAR_DISTANCE;
+                let proto = if far { Prototype::Far } else { Prototype::Walker };
+                self.batch.push(proto, Instance { pose: [w.pos[0], w.pos[1], 0.0, w.yaw(traffic)], size });
+            }
+        }
+        const LIT: f32 = 0.97;
+        const DARK: f32 = 0.13;
+        for h in &traffic.heads {
+            if !visible(h.center, 1.0) {
+                continue;
+            }
+            let yaw = h.facing[1].atan2(h.facing[0]);
+            let out = 0.5 * crate::traffic::HEAD_SIZE[1] + 0.01;
+            let (x, y) = (h.center[0] + out * h.facing[0], h.center[1] + out * h.facing[1]);
+            match h.kind {
+                HeadKind::Pedestrian(z) => {
+                    let s = traffic.plan.pedestrian(z, state.t);
+                    let [stand_z, walk_z] = PEDESTRIAN_HEAD.2;
+                    let stand = if s.stand_lit(state.t) { LIT } else { DARK };
+                    let walk = if s == crate::traffic::PedestrianSignal::Walk { LIT } else { DARK };
+                    self.batch.push(
+                        Prototype::FigureStand,
+                        Instance { pose: [x, y, stand_z, yaw], size: [1.0, 0.3, 0.3, stand] },
+                    );
+                    self.batch.push(
+                        Prototype::FigureWalk,
+                        Instance { pose: [x, y, walk_z, yaw], size: [1.0, 0.3, 0.3, walk] },
+                    );
+                }
+                HeadKind::Vehicle(road) => {
+                    let s = traffic.plan.vehicle(road, state.t);
+                    let lit = [s == VehicleSignal::Red, s == VehicleSignal::Amber, s == VehicleSignal::Green];
+                    for (z, on) in VEHICLE_HEAD.2.iter().zip(lit) {
+                        let tint = if on { LIT } else { DARK };
+                        self.batch
+                            .push(Prototype::Lamp, Instance { pose: [x, y, *z, yaw], size: [1.0, 0.22, 0.22, tint] });
+                    }
+                }
+            }
+        }
+    }
+
     /// Render the current view of every environment: one submission, one readback.
     /// Errors in state mode, which has no renderer.
     pub fn render(&mut self) -> Result<Frames<'_>> {
         self.cameras.clear();
+        self.batch.clear();
+        let fov = self.world.config.fov_deg.to_radians();
+        let traffic = self.world.traffic.is_some();
         for env in 0..self.peds.len() {
             let c = self.camera(env);
+            if traffic {
+                self.add_instances(env, &c, fov);
+                self.batch.finish_view();
+            }
             self.cameras.push(c);
         }
         let renderer = self.renderer.as_mut().ok_or(SimError::Config {
@@ -150,7 +270,8 @@ impl VecEnv {
             value: "state".into(),
             message: "rendering needs obs_mode = \"pixels\"".into(),
         })?;
-        Ok(renderer.render(&self.cameras)?)
+        let batch = traffic.then_some(&self.batch);
+        Ok(renderer.render_with(&self.cameras, batch)?)
     }
 
     /// State observation of environment `env` (any mode).
@@ -170,6 +291,8 @@ pub struct Info {
     pub collided: bool,
     /// Steps taken in the episode.
     pub step: u32,
+    /// What traffic did to the agent in this step (all false with traffic off or at reset).
+    pub safety: SafetyEvents,
 }
 
 /// An observation of [`PedestrianEnv`].
@@ -244,8 +367,13 @@ impl Env for PedestrianEnv {
     fn reset(&mut self, task: Pose, seed: u64) -> Result<(Observation, Info)> {
         self.inner.reset(0, task, seed)?;
         let p = *self.inner.pedestrian(0);
-        let info =
-            Info { pose: p.pose, region: self.inner.world.map.kind_at(p.pose.x, p.pose.y), collided: false, step: 0 };
+        let info = Info {
+            pose: p.pose,
+            region: self.inner.world.map.kind_at(p.pose.x, p.pose.y),
+            collided: false,
+            step: 0,
+            safety: SafetyEvents::default(),
+        };
         Ok((self.observe()?, info))
     }
 
@@ -257,7 +385,7 @@ impl Env for PedestrianEnv {
             reward: t.reward,
             terminated: t.terminated,
             truncated: t.truncated,
-            info: Info { pose: t.pose, region: t.region, collided: t.collided, step: t.step },
+            info: Info { pose: t.pose, region: t.region, collided: t.collided, step: t.step, safety: t.safety },
         })
     }
 }

@@ -115,6 +115,14 @@ pub enum RenderError {
         /// wgpu's message.
         message: String,
     },
+    /// A batch of moving things does not match the cameras it is drawn with.
+    #[error("the batch of moving things has {batch} views for {views} cameras")]
+    BatchViews {
+        /// Views in the batch.
+        batch: usize,
+        /// Cameras asked for.
+        views: usize,
+    },
     /// More views were asked for than the renderer was built for.
     #[error("asked to render {asked} views, but the renderer was built for at most {max}")]
     TooManyViews {

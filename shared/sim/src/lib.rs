@@ -10,10 +10,11 @@
 //! [`PedestrianEnv`], [`Env`]), the oracle planner ([`oracle::Oracle`]), the
 //! [`Policy`] trait every acting loop drives (with the random, oracle and fixed
 //! reference policies, [`policy`]) and the
-//! pictures a person looks at ([`draw`]).
+//! pictures a person looks at ([`draw`]); traffic — signals, vehicles and other
+//! pedestrians — when a run asks for it ([`traffic`]).
 //!
 //! Everything is deterministic: the only randomness (optional domain
-//! randomisation of the look) comes from the seed passed to `reset`.
+//! randomisation of the look, the traffic) comes from the seed passed to `reset`.
 
 #![warn(missing_docs)]
 
@@ -35,9 +36,10 @@ pub mod returns;
 pub mod reward;
 pub mod scene;
 pub mod state_obs;
+pub mod traffic;
 pub mod world;
 
-pub use config::{ObsMode, SimConfig};
+pub use config::{ObsMode, SimConfig, TrafficLevel};
 pub use env::{Env, Info, Observation, PedestrianEnv, StepOutcome, VecEnv};
 pub use error::{Result, SimError};
 pub use pedestrian::{Action, Pedestrian, Transition, command_of};
@@ -49,4 +51,5 @@ pub use returns::DiscountedReturn;
 pub use reward::Rewards;
 pub use scene::{Pose, Scene};
 pub use state_obs::STATE_OBS_DIM;
+pub use traffic::{SafetyEvents, Traffic, TrafficState};
 pub use world::SimWorld;

@@ -14,12 +14,22 @@
 //!    the paper's reward (terms, values and invariants in [`crate::reward`]);
 //! 4. terminated when the new position is in the goal area; otherwise truncated
 //!    when the step count reaches `t_max`.
+//!
+//! With traffic on ([`Pedestrian::step_in_traffic`]) the step also: stops the move
+//! short of any walker or vehicle it would run into (a bump: the collision reward,
+//! as for a wall); advances the traffic by `dt` (a moving vehicle that reaches the
+//! agent is a hit: the scene's `vehicle_hit` reward and the episode ends,
+//! terminated); pays a zebra entered outside WALK at the road's rate for as long as
+//! the agent stays on it (walking on the road against the signal); and records the
+//! step's [`SafetyEvents`]. The invariant above then holds with the episode's
+//! [`TrafficState`] as part of the state.
 
 use serde::{Deserialize, Serialize};
 
 use crate::config::SimConfig;
 use crate::region_kind::RegionKind;
 use crate::scene::{Pose, wrap_angle};
+use crate::traffic::{AgentContact, SafetyEvents, Traffic, TrafficState};
 use crate::world::SimWorld;
 
 /// An action in [−1, 1]³: (speed, yaw rate, head yaw). Values outside are clipped.
@@ -44,6 +54,22 @@ pub struct Transition {
     pub head_yaw: f32,
     /// Steps taken in this episode, including this one.
     pub step: u32,
+    /// What traffic did to the agent in this step (all false with traffic off).
+    #[serde(default)]
+    pub safety: SafetyEvents,
+}
+
+impl Transition {
+    /// Did this step end the episode in the goal (not by a vehicle hit)?
+    pub fn reached_goal(&self) -> bool {
+        self.terminated && !self.safety.vehicle_hit
+    }
+
+    /// The region whose map reward the step paid: the road for a zebra entered
+    /// outside WALK, else the region under the agent.
+    pub fn paid_region(&self) -> RegionKind {
+        if self.safety.against_signal { RegionKind::Road } else { self.region }
+    }
 }
 
 /// Mapped physical command of an action.
@@ -95,6 +121,13 @@ impl Pedestrian {
         self.done = false;
     }
 
+    /// The step's command, turn (rad), mid-step heading (rad) and distance (m).
+    fn motion(&self, action: Action, cfg: &SimConfig) -> (Command, f32, f32, f32) {
+        let cmd = command_of(action, cfg);
+        let turn = cmd.yaw_rate * cfg.dt;
+        (cmd, turn, self.pose.yaw + 0.5 * turn, cmd.speed * cfg.dt)
+    }
+
     /// Camera yaw = body yaw + head yaw offset.
     pub fn camera_yaw(&self) -> f32 {
         self.pose.yaw + self.head_yaw
@@ -103,10 +136,7 @@ impl Pedestrian {
     /// Advance one decision step (see the module docs for the order).
     pub fn step(&mut self, action: Action, world: &SimWorld) -> Transition {
         let cfg = &world.config;
-        let cmd = command_of(action, cfg);
-        let turn = cmd.yaw_rate * cfg.dt;
-        let heading = self.pose.yaw + 0.5 * turn;
-        let dist = cmd.speed * cfg.dt;
+        let (cmd, turn, heading, dist) = self.motion(action, cfg);
         let mv = world.physics.move_agent(self.pose.x, self.pose.y, dist * heading.cos(), dist * heading.sin(), cfg.dt);
         self.pose = Pose { x: mv.x, y: mv.y, yaw: wrap_angle(self.pose.yaw + turn) };
         self.head_yaw = cmd.head_yaw;
@@ -125,6 +155,58 @@ impl Pedestrian {
             pose: self.pose,
             head_yaw: self.head_yaw,
             step: self.step,
+            safety: SafetyEvents::default(),
+        }
+    }
+
+    /// Advance one decision step among traffic (see the module docs).
+    pub fn step_in_traffic(
+        &mut self,
+        action: Action,
+        world: &SimWorld,
+        traffic: &Traffic,
+        state: &mut TrafficState,
+    ) -> Transition {
+        let cfg = &world.config;
+        let (cmd, turn, heading, dist) = self.motion(action, cfg);
+        let from = [self.pose.x, self.pose.y];
+        let mv = world.physics.move_agent(from[0], from[1], dist * heading.cos(), dist * heading.sin(), cfg.dt);
+        let (p, contact) = state.block_agent(traffic, from, [mv.x, mv.y], cfg.agent_radius);
+        let t0 = state.t;
+        let vehicle_hit = state.advance(traffic, &world.physics, cfg.dt, p, cfg.agent_radius);
+        self.pose = Pose { x: p[0], y: p[1], yaw: wrap_angle(self.pose.yaw + turn) };
+        self.head_yaw = cmd.head_yaw;
+        self.step += 1;
+        let region = world.map.kind_at(p[0], p[1]);
+        let (legal, dont_walk_entry) = state.track_zebra(traffic, p, t0);
+        let paid = if region == RegionKind::Zebra && !legal { RegionKind::Road } else { region };
+        let collided = mv.collided || contact != AgentContact::None;
+        let mut reward = world.scene.rewards().step_reward(paid, cmd.speed, collided);
+        if vehicle_hit {
+            reward += traffic.vehicle_hit;
+        }
+        let moved = (p[0] - from[0]).hypot(p[1] - from[1]);
+        let safety = SafetyEvents {
+            vehicle_hit,
+            dont_walk_entry,
+            against_signal: paid != region,
+            pedestrian_bump: contact == AgentContact::Walker,
+            vehicle_bump: contact == AgentContact::Vehicle,
+            kerb_wait: moved < 0.1 && TrafficState::at_kerb(traffic, p, region),
+        };
+        let terminated = vehicle_hit || region == RegionKind::Goal;
+        let truncated = !terminated && self.step >= cfg.t_max;
+        self.done = terminated || truncated;
+        Transition {
+            reward,
+            terminated,
+            truncated,
+            collided,
+            region,
+            pose: self.pose,
+            head_yaw: self.head_yaw,
+            step: self.step,
+            safety,
         }
     }
 }

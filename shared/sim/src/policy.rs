@@ -79,6 +79,12 @@ impl Policy for RandomPolicy {
 }
 
 /// The oracle planner's greedy action ([`Oracle::best_action`]) in every environment.
+///
+/// With traffic it also knows the signal plan and sees the vehicles: from off the
+/// road it does not step onto a zebra that does not show WALK, nor onto the road or
+/// a zebra where a moving vehicle would be within 2 s (plus 3 m) of it — it stands
+/// and waits instead ([`traffic_gate`]). The plan itself ignores traffic, so this
+/// is a safe reference, not an optimal one over time in the cycle.
 pub struct OraclePolicy {
     oracle: Oracle,
 }
@@ -96,9 +102,55 @@ impl Policy for OraclePolicy {
         let world = envs.world();
         for (e, a) in actions.iter_mut().enumerate() {
             *a = self.oracle.best_action(world, envs.pedestrian(e));
+            if let Some(state) = envs.traffic(e) {
+                *a = traffic_gate(world, state, envs.pedestrian(e), *a);
+            }
         }
         Ok(())
     }
+}
+
+/// Stand still instead of `action` when it would step from off the road onto a
+/// zebra that does not show WALK, or onto the road or a zebra in front of a moving
+/// vehicle (within 2 s of travel plus 3 m, upstream along its lane, across its
+/// width plus 1 m) that is not held by a red stop line between it and the agent.
+pub fn traffic_gate(
+    world: &crate::SimWorld,
+    state: &crate::TrafficState,
+    p: &crate::Pedestrian,
+    action: Action,
+) -> Action {
+    use crate::RegionKind;
+    let Some((traffic, _)) = &world.traffic else { return action };
+    let here = world.map.kind_at(p.pose.x, p.pose.y);
+    if matches!(here, RegionKind::Road | RegionKind::Zebra) {
+        return action; // never freeze on the road
+    }
+    let mut q = *p;
+    let t = q.step(action, world);
+    let next = [t.pose.x, t.pose.y];
+    let wait = [-1.0, 0.0, action[2]];
+    if let Some(z) = traffic.zebra_at(next[0], next[1]) {
+        if traffic.plan.pedestrian(z, state.t) != crate::traffic::PedestrianSignal::Walk {
+            return wait;
+        }
+    }
+    if matches!(t.region, RegionKind::Road | RegionKind::Zebra) {
+        for (lane, lt) in traffic.lanes.iter().zip(&state.lanes) {
+            let (s, off) = lane.local(next);
+            let held = traffic.plan.vehicle(lane.road, state.t) != crate::traffic::VehicleSignal::Green;
+            for v in lt.vehicles.iter().filter(|v| v.v > 0.5) {
+                if held && v.s <= lane.stop_s && s > lane.stop_s {
+                    continue;
+                }
+                let ahead = s - v.s;
+                if off.abs() <= 0.5 * v.width + 1.0 && ahead > -v.length && ahead < 2.0 * v.v + 3.0 {
+                    return wait;
+                }
+            }
+        }
+    }
+    action
 }
 
 /// The same action in every environment at every step.

@@ -6,6 +6,8 @@
 //! pednav-sim record --policy oracle --start 3 --out out/episode.gif   # GIF: view beside the map
 //! pednav-sim oracle                                                   # oracle returns of the 14 points
 //! pednav-sim bench  --envs 1,16,64                                    # env steps/s vs render-only views/s
+//! pednav-sim traffic --hours 1                                        # flow, queues, saturation flow per level
+//! pednav-sim --traffic medium view --time 20 --x 13 --y -6.5 --yaw-deg 90   # any command among traffic
 //! ```
 
 use std::path::PathBuf;
@@ -21,7 +23,8 @@ use pednav_sim::draw::{Film, draw_map, enlarge_gray, save_gray_png, save_png};
 use pednav_sim::oracle::{Oracle, OracleConfig};
 use pednav_sim::policy::{FixedPolicy, OraclePolicy, Policy, RandomPolicy};
 use pednav_sim::{
-    Action, BackendChoice, CameraView, Look, Pose, Renderer, RendererConfig, Scene, SimConfig, SimWorld, VecEnv,
+    Action, BackendChoice, CameraView, Look, Pose, Renderer, RendererConfig, Scene, SimConfig, SimWorld, TrafficLevel,
+    VecEnv,
 };
 
 #[derive(Parser)]
@@ -37,9 +40,12 @@ struct Cli {
     /// Graphics backend: auto picks a real GPU first, then Mesa (Vulkan lavapipe, GL llvmpipe).
     #[arg(long, global = true, value_enum, env = "PEDNAV_BACKEND", default_value_t = BackendChoice::Auto)]
     backend: BackendChoice,
-    /// Seed of every random choice (random policy, domain randomisation).
+    /// Seed of every random choice (random policy, domain randomisation, traffic).
     #[arg(long, global = true, default_value_t = 0)]
     seed: u64,
+    /// Traffic at the crossing (the scene's `[traffic]` levels): signals, vehicles, other pedestrians.
+    #[arg(long, global = true, value_enum, default_value_t = TrafficLevel::Off)]
+    traffic: TrafficLevel,
     #[command(subcommand)]
     command: Command,
 }
@@ -66,6 +72,9 @@ enum Command {
         /// Size of the render for people (0 to skip).
         #[arg(long, default_value_t = 512)]
         people_size: u32,
+        /// With traffic: seconds after the episode's start (its traffic drawn from --seed) to show.
+        #[arg(long, default_value_t = 0.0)]
+        time: f32,
         /// Output PNG; `-x4` and `-<people_size>` variants are written beside it.
         #[arg(long, default_value = "out/view.png")]
         out: PathBuf,
@@ -117,6 +126,17 @@ enum Command {
         /// Seconds of measurement per configuration.
         #[arg(long, default_value_t = 3.0)]
         seconds: f64,
+        /// Observation size in pixels.
+        #[arg(long, default_value_t = 84)]
+        size: u32,
+    },
+    /// Validate the traffic model as traffic engineers would: measured flow per lane
+    /// against each level's set flow, queues at the stop lines, and the saturation
+    /// flow of queues discharging at green (with a demand above capacity).
+    Traffic {
+        /// Simulated hours per level.
+        #[arg(long, default_value_t = 1.0)]
+        hours: f64,
     },
     /// Print the scene summary and the graphics adapter that would be used.
     Info,
@@ -143,14 +163,15 @@ fn main() -> Result<()> {
     let cli = Cli::parse();
     let scene = Scene::load_or_reference(cli.scene.as_deref()).context("loading the scene")?;
     match cli.command {
-        Command::View { x, y, yaw_deg, head_deg, size, people_size, out } => {
+        Command::View { x, y, yaw_deg, head_deg, size, people_size, time, out } => {
             let fs = scene.fixed_start();
             let pose = Pose {
                 x: x.unwrap_or(fs.x),
                 y: y.unwrap_or(fs.y),
                 yaw: yaw_deg.map(f32::to_radians).unwrap_or(fs.yaw),
             };
-            let world = SimWorld::new(scene, SimConfig { image_size: size, ..SimConfig::default() })?;
+            let sim = SimConfig { image_size: size, traffic: cli.traffic, ..SimConfig::default() };
+            let world = SimWorld::new(scene.clone(), sim.clone())?;
             let cam = CameraView {
                 x: pose.x,
                 y: pose.y,
@@ -158,13 +179,39 @@ fn main() -> Result<()> {
                 yaw: pose.yaw + head_deg.to_radians(),
                 look: Look::default(),
             };
-            let frame = render_one(&world, cli.backend, size, cam)?;
+            let traffic_view = |size: u32| -> Result<Vec<u8>> {
+                let world = Arc::new(SimWorld::new(scene.clone(), SimConfig { image_size: size, ..sim.clone() })?);
+                let mut env = VecEnv::new(world.clone(), 1, cli.backend)?;
+                env.reset(0, pose, cli.seed)?;
+                let head = (head_deg / world.config.max_head_yaw_deg).clamp(-1.0, 1.0);
+                for _ in 0..(time / world.config.dt).round() as u32 {
+                    let t = env.step(&[[-1.0, 0.0, head]])?[0];
+                    if t.terminated || t.truncated {
+                        bail!("the episode ended before --time {time} s");
+                    }
+                }
+                if let Some(t) = env.traffic(0) {
+                    println!(
+                        "traffic: {} vehicles on the lanes, {} walkers, signal clock {:.2} s",
+                        t.num_vehicles(),
+                        t.walkers.len(),
+                        t.t
+                    );
+                }
+                Ok(env.render()?.frame(0))
+            };
+            let traffic_on = cli.traffic.is_on();
+            let frame = if traffic_on { traffic_view(size)? } else { render_one(&world, cli.backend, size, cam)? };
             save_gray_png(&frame, size, &out)?;
             let x4 = sibling(&out, "x4");
             save_png(&enlarge_gray(&frame, size, 4), &x4)?;
             println!("wrote {} ({size}×{size}) and {}", out.display(), x4.display());
             if people_size > 0 {
-                let big = render_one(&world, cli.backend, people_size, cam)?;
+                let big = if traffic_on {
+                    traffic_view(people_size)?
+                } else {
+                    render_one(&world, cli.backend, people_size, cam)?
+                };
                 let p = sibling(&out, &people_size.to_string());
                 save_gray_png(&big, people_size, &p)?;
                 println!("wrote {} ({people_size}×{people_size})", p.display());
@@ -193,7 +240,7 @@ fn main() -> Result<()> {
             println!("wrote {} ({}×{})", out.display(), canvas.image.width(), canvas.image.height());
         }
         Command::Record { policy, start, yaw_deg, steps, out } => {
-            let world = Arc::new(SimWorld::new(scene, SimConfig::default())?);
+            let world = Arc::new(SimWorld::new(scene, SimConfig { traffic: cli.traffic, ..SimConfig::default() })?);
             let start = if start == "first" {
                 let mut p = world.scene.first_task();
                 if let Some(y) = yaw_deg {
@@ -234,7 +281,11 @@ fn main() -> Result<()> {
                 }
             }
         }
-        Command::Bench { envs, seconds } => bench(scene, cli.backend, &envs, seconds)?,
+        Command::Bench { envs, seconds, size } => {
+            let sim = SimConfig { image_size: size, traffic: cli.traffic, ..SimConfig::default() };
+            bench(scene, sim, cli.backend, &envs, seconds)?
+        }
+        Command::Traffic { hours } => traffic_table(scene, hours, cli.seed)?,
         Command::Info => {
             println!("scene: {} ({})", scene.spec.name, scene.origin);
             println!("  {}", scene.spec.description);
@@ -323,7 +374,7 @@ fn record(
         pose = t.pose;
         trail.push((pose.x, pose.y));
         if t.terminated {
-            outcome = "goal reached";
+            outcome = if t.reached_goal() { "goal reached" } else { "hit by a vehicle" };
         } else {
             policy.observe(0, action[0], t.reward, None).map_err(anyhow::Error::from_boxed)?;
         }
@@ -360,8 +411,70 @@ fn measure(seconds: f64, units_per_iter: usize, mut f: impl FnMut() -> Result<()
     Ok(Rate { per_wall_s: units / w, per_cpu_s: units / c.max(1e-9) })
 }
 
-fn bench(scene: Scene, backend: BackendChoice, envs: &[usize], seconds: f64) -> Result<()> {
-    let world = Arc::new(SimWorld::new(scene, SimConfig::default())?);
+fn traffic_table(scene: Scene, hours: f64, seed: u64) -> Result<()> {
+    if !(hours > 0.0 && hours <= 100.0) {
+        bail!("--hours {hours} must lie in (0, 100]");
+    }
+    let levels = [("light", TrafficLevel::Light), ("medium", TrafficLevel::Medium), ("heavy", TrafficLevel::Heavy)];
+    let world = SimWorld::new(scene.clone(), SimConfig { traffic: TrafficLevel::Light, ..SimConfig::default() })?;
+    let (traffic, _) = world.traffic.clone().context("the scene has no [traffic] section")?;
+    println!(
+        "pednav-sim traffic: {} lanes, cycle {:.0} s, {:.0} simulated h per level after a {:.0} s warm-up, seed {seed}",
+        traffic.lanes.len(),
+        traffic.plan.cycle_s,
+        hours,
+        traffic.warmup_s
+    );
+    println!(
+        "{:>8} {:>9} {:>22} {:>9} {:>8} {:>8} {:>8} {:>10} {:>10} {:>9}",
+        "level",
+        "set veh/h",
+        "measured veh/h per lane",
+        "mean",
+        "mean/set",
+        "queue",
+        "max q",
+        "sat. hw s",
+        "sat. veh/h",
+        "1st go s"
+    );
+    let mut rows: Vec<(String, pednav_sim::traffic::TrafficSettings)> = Vec::new();
+    for (name, level) in levels {
+        let w = SimWorld::new(scene.clone(), SimConfig { traffic: level, ..SimConfig::default() })?;
+        rows.push((name.to_string(), w.traffic.context("traffic")?.1));
+    }
+    // A demand above capacity keeps a queue at every green: the saturation flow.
+    let mut sat = rows[2].1;
+    sat.flow = 1800.0;
+    rows.push(("saturated".into(), sat));
+    for (name, settings) in rows {
+        let settings = pednav_sim::traffic::TrafficSettings { walkers: 0, ..settings };
+        let r = pednav_sim::traffic::measure::measure(&world, &traffic, settings, hours * 3600.0, seed);
+        let lanes: Vec<String> = r.lane_flow.iter().map(|f| format!("{f:.0}")).collect();
+        println!(
+            "{:>8} {:>9.0} {:>22} {:>9.1} {:>8.3} {:>8.2} {:>8} {:>10.2} {:>10.0} {:>9.2}",
+            name,
+            r.set_flow,
+            lanes.join(" "),
+            r.mean_flow,
+            r.mean_flow / r.set_flow as f64,
+            r.mean_queue,
+            r.max_queue,
+            r.saturation_headway,
+            r.saturation_flow,
+            r.first_crossing_s
+        );
+    }
+    println!(
+        "measured = stop-line crossings; queue = vehicles under 2 m/s behind their line, sampled each second, mean per lane; \
+         sat. hw = mean headway from the 5th queued vehicle on (HCM's base saturation flow is 1,900 veh/h/lane = 1.89 s)"
+    );
+    Ok(())
+}
+
+fn bench(scene: Scene, sim: SimConfig, backend: BackendChoice, envs: &[usize], seconds: f64) -> Result<()> {
+    let traffic = sim.traffic;
+    let world = Arc::new(SimWorld::new(scene, sim)?);
     let starts: Vec<Pose> =
         world.scene.validation_points().iter().map(|p| Pose::from_degrees(p.x, p.y, p.favourable_yaw_deg)).collect();
     println!(
@@ -371,6 +484,7 @@ fn bench(scene: Scene, backend: BackendChoice, envs: &[usize], seconds: f64) -> 
         std::thread::available_parallelism().map(|n| n.get()).unwrap_or(1),
         std::env::var("LP_NUM_THREADS").unwrap_or_else(|_| "unset".into())
     );
+    println!("traffic: {traffic:?}");
     println!("rates per wall-second (st/s, v/s) and per CPU-second of the whole process, all threads (cpu-s)");
     println!(
         "{:>5} {:>14} {:>14} {:>14} {:>14} {:>14} {:>10}",

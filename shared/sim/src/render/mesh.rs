@@ -132,6 +132,26 @@ impl MeshBuilder {
         self.quad_facade(corners, shade, ([0.0; 4], [0.0; 4]));
     }
 
+    /// A planar quad of one flat shade (no lighting): lamps and figures.
+    pub(crate) fn flat_quad(&mut self, corners: [[f32; 3]; 4], shade: f32) {
+        self.quad(corners, shade);
+    }
+
+    /// A closed box from `min` to `max`, every face lit from the sun as it faces.
+    pub(crate) fn shaded_box(&mut self, min: [f32; 3], max: [f32; 3], base: f32) {
+        let ([x0, y0, z0], [x1, y1, z1]) = (min, max);
+        let faces = [
+            ([[x0, y0, z0], [x1, y0, z0], [x1, y0, z1], [x0, y0, z1]], [0.0, -1.0, 0.0]),
+            ([[x1, y1, z0], [x0, y1, z0], [x0, y1, z1], [x1, y1, z1]], [0.0, 1.0, 0.0]),
+            ([[x0, y1, z0], [x0, y0, z0], [x0, y0, z1], [x0, y1, z1]], [-1.0, 0.0, 0.0]),
+            ([[x1, y0, z0], [x1, y1, z0], [x1, y1, z1], [x1, y0, z1]], [1.0, 0.0, 0.0]),
+            ([[x0, y0, z1], [x1, y0, z1], [x1, y1, z1], [x0, y1, z1]], [0.0, 0.0, 1.0]),
+        ];
+        for (corners, n) in faces {
+            self.quad(corners, lit(base, n));
+        }
+    }
+
     /// Axis-aligned box from `z0` to `z1`; a `wall` paints its facade on the sides.
     fn cuboid(&mut self, min: [f32; 2], max: [f32; 2], [z0, z1]: [f32; 2], base: f32, wall: Option<Wall<'_>>) {
         let [x0, y0] = min;
@@ -303,6 +323,11 @@ pub fn part_visible(part: &DrawRange, x: f32, y: f32, yaw: f32, fov: f32) -> boo
     let bearing = crate::scene::wrap_angle(dy.atan2(dx) - yaw).abs();
     let spread = (part.radius / d).min(1.0).asin();
     bearing <= 0.5 * fov + spread + 5f32.to_radians()
+}
+
+/// [`part_visible`] for a bounding circle given by its centre and radius.
+pub fn part_visible_circle(center: [f32; 2], radius: f32, x: f32, y: f32, yaw: f32, fov: f32) -> bool {
+    part_visible(&DrawRange { start: 0, end: 0, center, radius }, x, y, yaw, fov)
 }
 
 /// A full-view quad at the far plane in clip space, drawn (for domain-randomised

@@ -16,6 +16,7 @@
 //! (`apt-get install -y mesa-vulkan-drivers`).
 
 mod adapter;
+pub mod dynamic;
 mod frames;
 mod ground;
 pub mod mesh;
@@ -32,6 +33,7 @@ use adapter::{describe, pick_adapter};
 
 pub use crate::error::RenderError;
 pub use adapter::{BackendChoice, prepare_headless_env};
+pub use dynamic::{DynamicBatch, Instance, Prototype};
 pub use frames::Frames;
 pub use mesh::SKY_SHADE;
 
@@ -121,6 +123,12 @@ pub struct Renderer {
     flat_pipeline: wgpu::RenderPipeline,
     /// The textured ground.
     ground_pipeline: wgpu::RenderPipeline,
+    /// Instanced prototypes (vehicles, walkers, lamps).
+    instanced_pipeline: wgpu::RenderPipeline,
+    /// Index ranges of the prototypes ([`dynamic::Prototype`] order).
+    prototypes: [(u32, u32); dynamic::PROTOTYPES],
+    /// Instances of the current call (grown as needed).
+    instances: wgpu::Buffer,
     bind_group: wgpu::BindGroup,
     uniforms: wgpu::Buffer,
     uniform_stride: u64,
@@ -205,6 +213,14 @@ impl Renderer {
         let sky_base = mesh.vertices.len() as u32;
         mesh.vertices.extend_from_slice(&mesh::sky_quad());
         mesh.indices.extend_from_slice(&[0, 1, 2, 0, 2, 3].map(|k| sky_base + k));
+        // The moving things' prototypes after the sky: the scene's own ranges stay as they were.
+        let mut protos = mesh::MeshBuilder {
+            vertices: std::mem::take(&mut mesh.vertices),
+            indices: std::mem::take(&mut mesh.indices),
+        };
+        let prototypes = dynamic::build_prototypes(&mut protos);
+        mesh.vertices = protos.vertices;
+        mesh.indices = protos.indices;
         let vertices = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
             label: Some("scene mesh"),
             contents: bytemuck::cast_slice(&mesh.vertices),
@@ -282,21 +298,22 @@ impl Renderer {
             bind_group_layouts: &[Some(&layout)],
             ..Default::default()
         });
-        let make_pipeline = |fragment: &str| {
+        let vertex_layout = wgpu::VertexBufferLayout {
+            array_stride: std::mem::size_of::<mesh::Vertex>() as u64,
+            step_mode: wgpu::VertexStepMode::Vertex,
+            attributes: &wgpu::vertex_attr_array![
+                0 => Float32x3, 1 => Float32x2, 2 => Float32, 3 => Float32, 4 => Float32x4, 5 => Float32x4
+            ],
+        };
+        let make = |vertex: &str, fragment: &str, buffers: &[Option<wgpu::VertexBufferLayout<'_>>]| {
             device.create_render_pipeline(&wgpu::RenderPipelineDescriptor {
                 label: Some(fragment),
                 layout: Some(&pipeline_layout),
                 vertex: wgpu::VertexState {
                     module: &shader,
-                    entry_point: Some("vs_main"),
+                    entry_point: Some(vertex),
                     compilation_options: Default::default(),
-                    buffers: &[Some(wgpu::VertexBufferLayout {
-                        array_stride: std::mem::size_of::<mesh::Vertex>() as u64,
-                        step_mode: wgpu::VertexStepMode::Vertex,
-                        attributes: &wgpu::vertex_attr_array![
-                            0 => Float32x3, 1 => Float32x2, 2 => Float32, 3 => Float32, 4 => Float32x4, 5 => Float32x4
-                        ],
-                    })],
+                    buffers,
                 },
                 primitive: wgpu::PrimitiveState { cull_mode: None, ..Default::default() },
                 depth_stencil: Some(wgpu::DepthStencilState {
@@ -321,8 +338,11 @@ impl Renderer {
                 cache: None,
             })
         };
-        let flat_pipeline = make_pipeline("fs_flat");
-        let ground_pipeline = make_pipeline("fs_ground");
+        let flat_pipeline = make("vs_main", "fs_flat", &[Some(vertex_layout.clone())]);
+        let ground_pipeline = make("vs_main", "fs_ground", &[Some(vertex_layout.clone())]);
+        let instanced_pipeline =
+            make("vs_instanced", "fs_flat", &[Some(vertex_layout.clone()), Some(dynamic::instance_layout())]);
+        let instances = Self::instance_buffer(&device, 1024);
 
         let atlas_size = wgpu::Extent3d { width: aw, height: ah, depth_or_array_layers: 1 };
         let color = device.create_texture(&wgpu::TextureDescriptor {
@@ -363,6 +383,9 @@ impl Renderer {
             queue,
             flat_pipeline,
             ground_pipeline,
+            instanced_pipeline,
+            prototypes,
+            instances,
             bind_group,
             uniforms,
             uniform_stride,
@@ -390,8 +413,27 @@ impl Renderer {
         &self.config
     }
 
+    fn instance_buffer(device: &wgpu::Device, capacity: usize) -> wgpu::Buffer {
+        device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("instances"),
+            size: (capacity * std::mem::size_of::<Instance>()) as u64,
+            usage: wgpu::BufferUsages::VERTEX | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        })
+    }
+
     /// Render all `views` in one submission and map the result once.
     pub fn render(&mut self, views: &[CameraView]) -> Result<Frames<'_>, RenderError> {
+        self.render_with(views, None)
+    }
+
+    /// Render all `views` with the moving things of `batch` (one range set per
+    /// view, in the same order) in one submission, and map the result once.
+    pub fn render_with(
+        &mut self,
+        views: &[CameraView],
+        batch: Option<&DynamicBatch>,
+    ) -> Result<Frames<'_>, RenderError> {
         let max = self.config.max_views.max(1);
         if views.len() > max {
             return Err(RenderError::TooManyViews { asked: views.len(), max });
@@ -414,6 +456,17 @@ impl Renderer {
         }
         let used = views.len() as u64 * self.uniform_stride;
         self.queue.write_buffer(&self.uniforms, 0, &self.staging[..used as usize]);
+        let batch = batch.filter(|b| !b.instances.is_empty());
+        if let Some(b) = batch {
+            if b.ranges.len() != views.len() {
+                return Err(RenderError::BatchViews { batch: b.ranges.len(), views: views.len() });
+            }
+            let bytes = (b.instances.len() * std::mem::size_of::<Instance>()) as u64;
+            if bytes > self.instances.size() {
+                self.instances = Self::instance_buffer(&self.device, b.instances.len().next_power_of_two());
+            }
+            self.queue.write_buffer(&self.instances, 0, bytemuck::cast_slice(&b.instances));
+        }
 
         let rows = (views.len() as u32).div_ceil(self.cols);
         let mut encoder = self.device.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("views") });
@@ -464,6 +517,17 @@ impl Renderer {
                 }
                 if v.look != Look::default() {
                     pass.draw_indexed(self.scene_indices..self.scene_indices + 6, 0, 0..1);
+                }
+                if let Some(b) = batch {
+                    // Moving things before the ground, for the same early-depth reason.
+                    pass.set_pipeline(&self.instanced_pipeline);
+                    pass.set_vertex_buffer(1, self.instances.slice(..));
+                    for (k, &(s, e)) in b.ranges[i as usize].iter().enumerate() {
+                        if e > s {
+                            let (is, ie) = self.prototypes[k];
+                            pass.draw_indexed(is..ie, 0, s..e);
+                        }
+                    }
                 }
                 pass.set_pipeline(&self.ground_pipeline);
                 pass.draw_indexed(ground.start..ground.end, 0, 0..1);

@@ -52,6 +52,35 @@ fn vs_main(
     return out;
 }
 
+// Instanced prototypes (vehicles, walkers, lamps): the unit mesh scaled by the
+// instance's size, turned by its yaw and placed; uv.x = 1 marks vertices that take
+// the instance's tint (dynamic.rs documents the conventions).
+@vertex
+fn vs_instanced(
+    @location(0) pos: vec3<f32>,
+    @location(1) uv: vec2<f32>,
+    @location(2) shade: f32,
+    @location(3) textured: f32,
+    @location(4) facade: vec4<f32>,
+    @location(5) facade_look: vec4<f32>,
+    @location(6) pose: vec4<f32>,
+    @location(7) size: vec4<f32>,
+) -> VsOut {
+    var out: VsOut;
+    let p = pos * size.xyz;
+    let c = cos(pose.w);
+    let s = sin(pose.w);
+    let world = vec3<f32>(pose.x + c * p.x - s * p.y, pose.y + s * p.x + c * p.y, pose.z + p.z);
+    out.clip = view.view_proj * vec4<f32>(world, 1.0);
+    out.world = world;
+    out.uv = vec2<f32>(0.0, 0.0);
+    out.shade = shade * mix(1.0, size.w, uv.x);
+    out.textured = 0.0;
+    out.facade = vec4<f32>(0.0);
+    out.facade_look = vec4<f32>(0.0);
+    return out;
+}
+
 // Integral over (-inf, x] of the periodic box that is 1 on [a, b) + n (period 1).
 fn box_integral(x: f32, a: f32, b: f32) -> f32 {
     return floor(x) * (b - a) + clamp(fract(x), a, b) - a;

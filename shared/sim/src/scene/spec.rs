@@ -184,6 +184,10 @@ pub struct SceneSpec {
     pub enlarged_curriculum_region: Vec<Area>,
     /// The 14 validation points.
     pub validation_points: Vec<ValidationPoint>,
+    /// Signals, vehicles and other pedestrians (used only when a run sets
+    /// `sim.traffic` to a level other than `off`; checked at load either way).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub traffic: Option<crate::traffic::TrafficSpec>,
 }
 
 fn default_wall_height() -> f32 {
