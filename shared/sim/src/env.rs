@@ -33,7 +33,7 @@ use std::sync::Arc;
 use crate::config::ObsMode;
 use crate::error::{Result, SimError};
 use crate::pedestrian::{Action, Pedestrian, Transition};
-use crate::render::dynamic::FAR_DISTANCE;
+use crate::render::dynamic::{FAR_DISTANCE, LAMP_DISTANCE};
 use crate::render::mesh::part_visible_circle;
 use crate::render::{
     BackendChoice, CameraView, DynamicBatch, Frames, Instance, Look, Prototype, Renderer, RendererConfig,
@@ -216,7 +216,10 @@ impl VecEnv {
         const LIT: f32 = 0.97;
         const DARK: f32 = 0.13;
         for h in &traffic.heads {
-            if !visible(h.center, 1.0) {
+            // A lamp shows only to the front of its head, and is under a pixel far off.
+            let (dx, dy) = (c.x - h.center[0], c.y - h.center[1]);
+            let behind = dx * h.facing[0] + dy * h.facing[1] <= 0.0;
+            if behind || dx.hypot(dy) > LAMP_DISTANCE || !visible(h.center, 1.0) {
                 continue;
             }
             let yaw = h.facing[1].atan2(h.facing[0]);

@@ -42,6 +42,10 @@ pub const PROTOTYPES: usize = 7;
 /// [`Prototype::Far`]: at 84² and 135° a car there is under 10 pixels long.
 pub const FAR_DISTANCE: f32 = 35.0;
 
+/// Beyond this distance lamps are not drawn: a 0.3 m lamp there subtends under a
+/// third of a pixel at 84² and 135°. Lamps seen from behind their head are never drawn.
+pub const LAMP_DISTANCE: f32 = 45.0;
+
 /// One placed prototype.
 #[repr(C)]
 #[derive(Debug, Clone, Copy, PartialEq, Pod, Zeroable)]
