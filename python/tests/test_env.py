@@ -98,7 +98,7 @@ def test_traffic_is_a_keyword_and_its_safety_events_are_in_info() -> None:
         if terminated or truncated:
             break
     assert terminated and info["vehicle_hit"] and not info["success"], "no vehicle reached an agent standing in its lane"
-    assert info["reward_traffic"] == -100.0
+    assert info["reward_traffic"] == -300.0
     env.close()
 
 

@@ -37,8 +37,12 @@ pub enum PolicyKind {
     },
     /// Uniform random actions (the random-walk baseline).
     Random,
-    /// The oracle planner's greedy action (an upper reference).
+    /// The oracle planner's greedy action (an upper reference); with traffic, gated
+    /// by the signals and vehicles ([`pednav_sim::policy::traffic_gate`]).
     Oracle,
+    /// The oracle planner's greedy action walked through traffic as if there were
+    /// none: what crossing against the signal costs.
+    OracleIgnoringTraffic,
 }
 
 /// The evaluator's policy: the learned one (which the diagnosis can watch) or a
@@ -148,6 +152,9 @@ impl Evaluator {
                 &world,
                 OracleConfig { gamma, ..OracleConfig::default() },
             )))),
+            PolicyKind::OracleIgnoringTraffic => EvalPolicy::Reference(Box::new(OraclePolicy::ignoring_traffic(
+                Oracle::plan(&world, OracleConfig { gamma, ..OracleConfig::default() }),
+            ))),
         };
         Ok(Evaluator { world, envs: envs_, policy, gamma })
     }

@@ -166,12 +166,12 @@ impl SimConfig {
         check(self.fov_deg > 10.0 && self.fov_deg < 170.0, "fov_deg", self.fov_deg, "must lie in (10, 170) degrees")?;
         check((8..=1024).contains(&self.image_size), "image_size", self.image_size, "must lie in [8, 1024] pixels")?;
         if let Some(f) = self.traffic_flow {
-            if let Err((_, m)) = crate::traffic::check_level(f, 0) {
+            if let Err((_, m)) = check_level(f, 0) {
                 return Err(SimError::Config { field: "traffic_flow", value: f.to_string(), message: m });
             }
         }
         if let Some(w) = self.traffic_walkers {
-            if let Err((_, m)) = crate::traffic::check_level(0.0, w) {
+            if let Err((_, m)) = check_level(0.0, w) {
                 return Err(SimError::Config { field: "traffic_walkers", value: w.to_string(), message: m });
             }
         }
@@ -180,6 +180,20 @@ impl SimConfig {
         }
         Ok(())
     }
+}
+
+/// Range check of a level's numbers: (field, message) on failure.
+pub(crate) fn check_level(flow: f32, walkers: u32) -> std::result::Result<(), (&'static str, String)> {
+    if !(flow >= 0.0 && flow <= 2400.0) {
+        return Err((
+            "flow",
+            format!("{flow} must lie in [0, 2400] vehicles/h/lane (a lane carries at most ≈ 1,900 at green)"),
+        ));
+    }
+    if walkers > 64 {
+        return Err(("walkers", format!("{walkers} must be at most 64")));
+    }
+    Ok(())
 }
 
 #[cfg(test)]

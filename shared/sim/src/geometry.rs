@@ -19,6 +19,17 @@ pub(crate) fn invalid(origin: &str, field: &str, message: String) -> SimError {
     SimError::SceneInvalid { origin: origin.to_string(), field: field.to_string(), message }
 }
 
+/// Axis along which a pedestrian walks over a zebra crossing; the stripes
+/// alternate along it (each stripe is long across this axis).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Axis {
+    /// Walking direction along x.
+    X,
+    /// Walking direction along y.
+    Y,
+}
+
 /// An axis-aligned rectangle `[x_min, y_min, x_max, y_max]` in metres.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct Rect {

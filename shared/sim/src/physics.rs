@@ -29,6 +29,13 @@ impl Default for AgentBody {
     }
 }
 
+impl crate::traffic::Ground for StaticWorld {
+    fn move_body(&self, x: f32, y: f32, dx: f32, dy: f32, dt: f32) -> [f32; 2] {
+        let m = self.move_agent(x, y, dx, dy, dt);
+        [m.x, m.y]
+    }
+}
+
 /// Result of one attempted move.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Move {

@@ -4,7 +4,7 @@
 
 use std::sync::Arc;
 
-use pednav_sim::traffic::measure::measure;
+use pednav_sim::traffic::measure::{Bench, measure};
 use pednav_sim::traffic::{PedestrianSignal, TrafficSettings};
 use pednav_sim::{BackendChoice, ObsMode, Pose, Scene, SimConfig, SimError, SimWorld, TrafficLevel, VecEnv};
 
@@ -60,7 +60,7 @@ fn every_traffic_field_is_range_checked_with_its_name() {
         ("{ a = 4, b = 5, crossing = 0 }", "{ a = 4, b = 5, crossing = 9 }", "traffic.walkers.edges[16].crossing"),
         ("{ a = 4, b = 5, crossing = 0 }", "{ a = 4, b = 13, crossing = 0 }", "traffic.walkers.edges[16]"),
         ("[7.0, -7.0], [7.0, 7.0]", "[7.0, -2.0], [7.0, 7.0]", "traffic.walkers.nodes[0]"),
-        ("vehicle_hit = -100.0", "vehicle_hit = 5.0", "traffic.rewards.vehicle_hit"),
+        ("vehicle_hit = -300.0", "vehicle_hit = 5.0", "traffic.rewards.vehicle_hit"),
         ("facing_deg = 90.0, zebra = 0", "facing_deg = 45.0, zebra = 0", "traffic.heads[0].facing_deg"),
         ("pole = [10.4, -5.6], facing_deg = 90.0", "pole = [11.4, -5.6], facing_deg = 90.0", "traffic.heads[0].pole"),
         ("substeps = 2", "substeps = 0", "traffic.substeps"),
@@ -89,12 +89,13 @@ fn every_traffic_field_is_range_checked_with_its_name() {
 fn measured_flow_is_the_set_flow_below_saturation_and_queues_discharge_at_a_saturation_flow() {
     let w = world(TrafficLevel::Medium, ObsMode::State);
     let (traffic, medium) = w.traffic.clone().unwrap();
+    let bench = Bench { ground: &w.physics, far: [-1e4, -1e4], agent_radius: w.config.agent_radius, dt: w.config.dt };
     for flow in [200.0, 450.0] {
-        let r = measure(&w, &traffic, TrafficSettings { flow, walkers: 0, ..medium }, 3600.0, 3);
+        let r = measure(bench, &traffic, TrafficSettings { flow, walkers: 0, ..medium }, 3600.0, 3);
         assert!((r.mean_flow / flow as f64 - 1.0).abs() < 0.10, "flow {flow}: measured {:.1} veh/h/lane", r.mean_flow);
         assert!(r.backlog < 4, "below capacity the entries keep up: backlog {}", r.backlog);
     }
-    let r = measure(&w, &traffic, TrafficSettings { flow: 1800.0, walkers: 0, ..medium }, 1800.0, 3);
+    let r = measure(bench, &traffic, TrafficSettings { flow: 1800.0, walkers: 0, ..medium }, 1800.0, 3);
     assert!(r.headways > 50, "{r:?}");
     assert!((1400.0..=2100.0).contains(&r.saturation_flow), "saturation flow {:.0} veh/h of green", r.saturation_flow);
 }

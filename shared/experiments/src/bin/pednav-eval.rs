@@ -38,8 +38,11 @@ enum PolicyArg {
     Untrained,
     /// Uniform random actions (random-walk baseline).
     Random,
-    /// The oracle planner.
+    /// The oracle planner (with traffic: waits for WALK and for gaps in the vehicles).
     Oracle,
+    /// With traffic: the oracle planner of the empty crossing, walking through signals
+    /// and vehicles as if there were none (what crossing against the signal costs).
+    OracleIgnoringTraffic,
 }
 
 /// How a learned policy picks its actions in evaluation.
@@ -136,6 +139,17 @@ fn action_label(cli: &Cli) -> String {
     }
 }
 
+/// The `--policy` value that names `p` (for names and for the workers' command lines).
+fn policy_arg(p: PolicyArg) -> &'static str {
+    match p {
+        PolicyArg::Learned => "learned",
+        PolicyArg::Untrained => "untrained",
+        PolicyArg::Random => "random",
+        PolicyArg::Oracle => "oracle",
+        PolicyArg::OracleIgnoringTraffic => "oracle-ignoring-traffic",
+    }
+}
+
 fn kind(cli: &Cli) -> PolicyKind {
     match cli.policy {
         PolicyArg::Learned | PolicyArg::Untrained => {
@@ -143,6 +157,7 @@ fn kind(cli: &Cli) -> PolicyKind {
         }
         PolicyArg::Random => PolicyKind::Random,
         PolicyArg::Oracle => PolicyKind::Oracle,
+        PolicyArg::OracleIgnoringTraffic => PolicyKind::OracleIgnoringTraffic,
     }
 }
 
@@ -212,7 +227,7 @@ fn main() -> Result<()> {
         return Ok(());
     }
 
-    let policy_name = format!("{:?}", cli.policy).to_lowercase();
+    let policy_name = cli.policy.to_possible_value().expect("no policy is skipped").get_name().to_string();
     // Another checkpoint than the run's latest gets its own folder, named after it.
     let folder = match &cli.checkpoint {
         Some(c) => format!("{policy_name}-{}", c.file_name().map_or("checkpoint".into(), |n| n.to_string_lossy())),
@@ -400,7 +415,7 @@ fn run_workers(cli: &Cli, out: &Path, shown: &mut Progress) -> Result<Vec<Episod
             cmd.args(["--init-seed", &s.to_string()]);
         }
         cmd.args(["--mode", &format!("{:?}", cli.mode).to_lowercase()]);
-        cmd.args(["--policy", &format!("{:?}", cli.policy).to_lowercase()])
+        cmd.args(["--policy", policy_arg(cli.policy)])
             .args(["--runs", &cli.runs.to_string(), "--t-max", &cli.t_max.to_string()])
             .args(["--envs", &cli.envs.to_string(), "--seed", &cli.seed.to_string()])
             .args(["--shard", &k.to_string(), "--of", &cli.workers.to_string()])

@@ -449,7 +449,13 @@ fn traffic_table(scene: Scene, hours: f64, seed: u64) -> Result<()> {
     rows.push(("saturated".into(), sat));
     for (name, settings) in rows {
         let settings = pednav_sim::traffic::TrafficSettings { walkers: 0, ..settings };
-        let r = pednav_sim::traffic::measure::measure(&world, &traffic, settings, hours * 3600.0, seed);
+        let bench = pednav_sim::traffic::measure::Bench {
+            ground: &world.physics,
+            far: [world.scene.extent.min[0] - 1e4, world.scene.extent.min[1] - 1e4],
+            agent_radius: world.config.agent_radius,
+            dt: world.config.dt,
+        };
+        let r = pednav_sim::traffic::measure::measure(bench, &traffic, settings, hours * 3600.0, seed);
         let lanes: Vec<String> = r.lane_flow.iter().map(|f| format!("{f:.0}")).collect();
         println!(
             "{:>8} {:>9.0} {:>22} {:>9.1} {:>8.3} {:>8.2} {:>8} {:>10.2} {:>10.0} {:>9.2}",

@@ -350,7 +350,8 @@ impl Scene {
         let traffic = match &spec.traffic {
             None => None,
             Some(t) => {
-                let traffic = crate::traffic::Traffic::resolve(t, &regions, &extent, origin)?;
+                let outlines: Vec<_> = regions.iter().map(|r| (r.kind, &r.polygon, r.walk_axis)).collect();
+                let traffic = crate::traffic::Traffic::resolve(t, &outlines, &extent, origin)?;
                 for (i, h) in t.heads.iter().enumerate() {
                     let on_pole = obstacles.iter().any(|o| {
                         o.kind == ObstacleKind::Pole

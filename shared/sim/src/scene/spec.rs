@@ -13,16 +13,7 @@ use crate::geometry::Area;
 use crate::region_kind::RegionKind;
 use crate::reward::Rewards;
 
-/// Axis along which a pedestrian walks over a zebra crossing; the stripes
-/// alternate along it (each stripe is long across this axis).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "snake_case")]
-pub enum Axis {
-    /// Walking direction along x.
-    X,
-    /// Walking direction along y.
-    Y,
-}
+pub use crate::geometry::Axis;
 
 /// A ground region as written in the scene file.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]

@@ -7,8 +7,7 @@
 //! yields to it) and reads its lanes; it changes no rule of the model.
 
 use super::vehicle::Crossings;
-use super::{Traffic, TrafficSettings, TrafficState, VehicleSignal};
-use crate::world::SimWorld;
+use super::{Ground, Traffic, TrafficSettings, TrafficState, VehicleSignal};
 
 /// What one measurement found.
 #[derive(Debug, Clone, PartialEq)]
@@ -38,12 +37,24 @@ pub struct FlowReport {
     pub seconds: f64,
 }
 
-/// Run the traffic of `world` for `seconds` after its warm-up at `settings`,
-/// seeded with `seed`, and measure it.
-pub fn measure(world: &SimWorld, traffic: &Traffic, settings: TrafficSettings, seconds: f64, seed: u64) -> FlowReport {
-    let far = [world.scene.extent.min[0] - 1e4, world.scene.extent.min[1] - 1e4];
-    let r = world.config.agent_radius;
-    let dt = world.config.dt;
+/// Where measurements run: the static world the walkers move through, a point far
+/// outside the world to park the agent at, the agent's radius and the decision step.
+#[derive(Clone, Copy)]
+pub struct Bench<'a> {
+    /// The static world's colliders.
+    pub ground: &'a dyn Ground,
+    /// A point far outside the world.
+    pub far: [f32; 2],
+    /// The agent's radius, metres.
+    pub agent_radius: f32,
+    /// The decision step, seconds.
+    pub dt: f32,
+}
+
+/// Run `traffic` for `seconds` after its warm-up at `settings`, seeded with `seed`,
+/// and measure it.
+pub fn measure(bench: Bench<'_>, traffic: &Traffic, settings: TrafficSettings, seconds: f64, seed: u64) -> FlowReport {
+    let Bench { ground, far, agent_radius: r, dt } = bench;
     let mut state = TrafficState::new(traffic, settings, seed, far, r, dt);
     for lt in state.lanes.iter_mut() {
         lt.crossings = Some(Crossings::new());
@@ -59,7 +70,7 @@ pub fn measure(world: &SimWorld, traffic: &Traffic, settings: TrafficSettings, s
         (0..traffic.roads.len()).map(|r| traffic.plan.vehicle(r, state.t) == VehicleSignal::Green).collect();
     let per_second = (1.0 / dt).round().max(1.0) as u64;
     for k in 0..steps {
-        state.advance(traffic, &world.physics, dt, far, r);
+        state.advance(traffic, ground, dt, far, r);
         for (road, was) in was_green.iter_mut().enumerate() {
             let green = traffic.plan.vehicle(road, state.t) == VehicleSignal::Green;
             if green && !*was {

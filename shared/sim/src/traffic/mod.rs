@@ -30,14 +30,20 @@ pub mod vehicle;
 pub mod walker;
 
 use crate::config::{SimConfig, TrafficLevel};
-use crate::geometry::{Polygon, Rect};
-use crate::scene::Axis;
-
-pub(crate) use resolve::check_level;
+use crate::geometry::{Axis, Polygon, Rect};
 
 pub use signal::{PedestrianSignal, SignalPlan, VehicleSignal};
 pub use spec::{TrafficSpec, VehicleStyle};
 pub use state::{AgentContact, SafetyCounts, SafetyEvents, TrafficState};
+
+/// What moving bodies walk through: the static world's colliders. Implemented by
+/// [`crate::physics::StaticWorld`] (rapier's character controller); traffic only
+/// needs this one question answered, so it does not depend on the physics module.
+pub trait Ground {
+    /// Where a body of the agent's size ends up moving from `(x, y)` by `(dx, dy)`
+    /// in `dt` seconds, sliding along obstacles.
+    fn move_body(&self, x: f32, y: f32, dx: f32, dy: f32, dt: f32) -> [f32; 2];
+}
 
 /// Walking speed the clearance interval is timed for (MUTCD 2009, 4E.06: 3.5 ft/s).
 pub const MUTCD_WALKING_SPEED: f32 = 1.07;

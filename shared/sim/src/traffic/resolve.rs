@@ -10,10 +10,10 @@ use super::{
     Head, HeadKind, Lane, MIN_WALK_S, MUTCD_WALKING_SPEED, SignalPlan, Traffic, TrafficSpec, VehicleKind,
     WalkerNetwork, Zebra, signal,
 };
+use crate::config::check_level;
 use crate::error::Result;
-use crate::geometry::{Rect, invalid};
+use crate::geometry::{Axis, Polygon, Rect, invalid};
 use crate::region_kind::RegionKind;
-use crate::scene::{Axis, Region};
 
 fn finite2(p: [f32; 2]) -> bool {
     p[0].is_finite() && p[1].is_finite()
@@ -34,26 +34,32 @@ fn segments_cross(a: [f32; 2], b: [f32; 2], c: [f32; 2], d: [f32; 2]) -> Option<
 }
 
 impl Traffic {
-    /// Validate a traffic section against its scene's regions, extent and obstacles.
-    /// Every error names the field (`traffic.lanes[2].stop_line`, `traffic.signal.phases[0]`, …).
-    pub fn resolve(spec: &TrafficSpec, regions: &[Region], extent: &Rect, origin: &str) -> Result<Traffic> {
+    /// Validate a traffic section against its scene's regions (kind, outline and a
+    /// zebra's walking axis, in paint order) and extent; the scene checks the heads'
+    /// poles and the walkers' clearance of its obstacles. Every error names the field
+    /// (`traffic.lanes[2].stop_line`, `traffic.signal.phases[0]`, …).
+    pub fn resolve(
+        spec: &TrafficSpec,
+        regions: &[(RegionKind, &Polygon, Option<Axis>)],
+        extent: &Rect,
+        origin: &str,
+    ) -> Result<Traffic> {
         let bad = |field: &str, message: String| invalid(origin, &format!("traffic.{field}"), message);
-        let region_at = |x: f32, y: f32| {
-            regions.iter().rev().find(|r| r.polygon.contains(x, y)).map(|r| r.kind).unwrap_or(RegionKind::Road)
-        };
+        let region_at =
+            |x: f32, y: f32| regions.iter().rev().find(|r| r.1.contains(x, y)).map(|r| r.0).unwrap_or(RegionKind::Road);
 
         // Zebras: the scene's zebra regions in file order.
         let zebras: Vec<Zebra> = regions
             .iter()
-            .filter(|r| r.kind == RegionKind::Zebra)
-            .map(|r| {
-                let bounds = r.polygon.bounds();
-                let axis = r.walk_axis.unwrap_or(Axis::Y);
+            .filter(|r| r.0 == RegionKind::Zebra)
+            .map(|&(_, polygon, walk_axis)| {
+                let bounds = polygon.bounds();
+                let axis = walk_axis.unwrap_or(Axis::Y);
                 let length = match axis {
                     Axis::X => bounds.width(),
                     Axis::Y => bounds.height(),
                 };
-                Zebra { polygon: r.polygon.clone(), bounds, walk_axis: axis, length }
+                Zebra { polygon: polygon.clone(), bounds, walk_axis: axis, length }
             })
             .collect();
         let zebra_ok = |field: &str, z: usize| {
@@ -477,18 +483,4 @@ impl Traffic {
             warmup_s: spec.warmup_s,
         })
     }
-}
-
-/// Range check of a level's numbers: (field, message) on failure.
-pub(crate) fn check_level(flow: f32, walkers: u32) -> std::result::Result<(), (&'static str, String)> {
-    if !(flow >= 0.0 && flow <= 2400.0) {
-        return Err((
-            "flow",
-            format!("{flow} must lie in [0, 2400] vehicles/h/lane (a lane carries at most ≈ 1,900 at green)"),
-        ));
-    }
-    if walkers > 64 {
-        return Err(("walkers", format!("{walkers} must be at most 64")));
-    }
-    Ok(())
 }

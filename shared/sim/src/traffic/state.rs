@@ -13,8 +13,7 @@ use rand_chacha::ChaCha8Rng;
 
 use super::vehicle::{Claim, LaneTraffic};
 use super::walker::{self, Walker};
-use super::{CONFLICT_HALF_WIDTH, PedestrianSignal, Traffic, TrafficSettings};
-use crate::physics::StaticWorld;
+use super::{CONFLICT_HALF_WIDTH, Ground, PedestrianSignal, Traffic, TrafficSettings};
 use crate::region_kind::RegionKind;
 
 /// Mixed into the episode seed so the traffic's stream differs from every other
@@ -188,7 +187,7 @@ impl TrafficState {
     pub fn advance(
         &mut self,
         traffic: &Traffic,
-        physics: &StaticWorld,
+        ground: &dyn Ground,
         dt: f32,
         agent: [f32; 2],
         agent_radius: f32,
@@ -199,7 +198,7 @@ impl TrafficState {
         let mut peds = Vec::with_capacity(self.walkers.len() + 1);
         // Walkers move once per decision step (their social force is stable at
         // 0.25 s: h/τ = 0.5), vehicles every sub-step.
-        walker::advance(&mut self.walkers, traffic, physics, agent, agent_radius, self.t, dt, &mut self.rng);
+        walker::advance(&mut self.walkers, traffic, ground, agent, agent_radius, self.t, dt, &mut self.rng);
         for _ in 0..n {
             peds.clear();
             peds.push(agent);

@@ -18,8 +18,7 @@
 
 use rand::Rng;
 
-use super::{PedestrianSignal, Traffic};
-use crate::physics::StaticWorld;
+use super::{Ground, PedestrianSignal, Traffic};
 
 const TAU: f32 = 0.5;
 const FORCE_A: f32 = 2.0;
@@ -91,7 +90,7 @@ impl Walker {
 pub fn advance(
     walkers: &mut [Walker],
     traffic: &Traffic,
-    physics: &StaticWorld,
+    ground: &dyn Ground,
     agent: [f32; 2],
     agent_radius: f32,
     t: f64,
@@ -154,9 +153,9 @@ pub fn advance(
             w.vel = [w.vel[0] * cap / sp, w.vel[1] * cap / sp];
         }
         let reach = r + agent_radius;
-        let mv = physics.move_agent(w.pos[0], w.pos[1], w.vel[0] * h, w.vel[1] * h, h);
-        if (mv.x - agent[0]).hypot(mv.y - agent[1]) >= reach {
-            w.pos = [mv.x, mv.y];
+        let mv = ground.move_body(w.pos[0], w.pos[1], w.vel[0] * h, w.vel[1] * h, h);
+        if (mv[0] - agent[0]).hypot(mv[1] - agent[1]) >= reach {
+            w.pos = mv;
         } else {
             // Slide around the agent: keep only the part of the velocity that does not close in.
             let (nx, ny) = (w.pos[0] - agent[0], w.pos[1] - agent[1]);
@@ -164,9 +163,9 @@ pub fn advance(
             let (nx, ny) = (nx / d, ny / d);
             let closing = (w.vel[0] * nx + w.vel[1] * ny).min(0.0);
             w.vel = [w.vel[0] - closing * nx, w.vel[1] - closing * ny];
-            let mv = physics.move_agent(w.pos[0], w.pos[1], w.vel[0] * h, w.vel[1] * h, h);
-            if (mv.x - agent[0]).hypot(mv.y - agent[1]) >= reach {
-                w.pos = [mv.x, mv.y];
+            let mv = ground.move_body(w.pos[0], w.pos[1], w.vel[0] * h, w.vel[1] * h, h);
+            if (mv[0] - agent[0]).hypot(mv[1] - agent[1]) >= reach {
+                w.pos = mv;
             } else {
                 w.vel = [0.0, 0.0];
             }
