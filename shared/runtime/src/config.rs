@@ -171,9 +171,12 @@ impl RunConfig {
         toml::to_string_pretty(self).expect("a run config always serialises")
     }
 
-    /// The scene of the run.
+    /// The scene of the run, as its processes see it: with the traffic fixtures
+    /// (extra signal poles, head housings) when `sim.traffic` is on, so the
+    /// curriculum's start checks know every collider the actors' worlds have.
     pub fn scene(&self) -> Result<Scene> {
         Scene::load_or_reference(self.scene.as_deref())
+            .and_then(|s| s.with_traffic(self.sim.traffic))
             .map_err(|e| RuntimeError::file(self.scene.clone().unwrap_or_else(|| "reference scene".into()), e))
     }
 
@@ -391,6 +394,21 @@ fn apply_override(table: &mut toml::Table, assignment: &str) -> std::result::Res
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn with_traffic_the_runs_scene_carries_the_signal_poles_every_process_checks_starts_against() {
+        let mut cfg = RunConfig::default();
+        let off = cfg.scene().unwrap();
+        cfg.sim.traffic = pednav_sim::TrafficLevel::Medium;
+        let on = cfg.scene().unwrap();
+        let extra = on.traffic.as_ref().unwrap().extra_poles.len();
+        assert!(extra > 0 && on.traffic_fixtures && !off.traffic_fixtures);
+        assert_eq!(on.obstacles.len(), off.obstacles.len() + extra);
+        // A start touching an extra pole is refused by the scene the curriculum samples from.
+        let p = on.traffic.as_ref().unwrap().extra_poles[0];
+        let pose = pednav_sim::Pose { x: p[0] + 0.2, y: p[1], yaw: 0.0 };
+        assert!(on.check_task(pose).is_err() && off.check_task(pose).is_ok());
+    }
 
     #[test]
     fn defaults_are_valid_and_round_trip_through_toml() {
