@@ -143,20 +143,7 @@ impl Pedestrian {
         self.step += 1;
         let region = world.map.kind_at(mv.x, mv.y);
         let reward = world.scene.rewards().step_reward(region, cmd.speed, mv.collided);
-        let terminated = region == RegionKind::Goal;
-        let truncated = !terminated && self.step >= cfg.t_max;
-        self.done = terminated || truncated;
-        Transition {
-            reward,
-            terminated,
-            truncated,
-            collided: mv.collided,
-            region,
-            pose: self.pose,
-            head_yaw: self.head_yaw,
-            step: self.step,
-            safety: SafetyEvents::default(),
-        }
+        self.finish(reward, region == RegionKind::Goal, mv.collided, region, SafetyEvents::default(), cfg.t_max)
     }
 
     /// Advance one decision step among traffic (see the module docs).
@@ -194,8 +181,21 @@ impl Pedestrian {
             vehicle_bump: contact == AgentContact::Vehicle,
             kerb_wait: moved < 0.1 && TrafficState::at_kerb(traffic, p, region),
         };
-        let terminated = vehicle_hit || region == RegionKind::Goal;
-        let truncated = !terminated && self.step >= cfg.t_max;
+        self.finish(reward, vehicle_hit || region == RegionKind::Goal, collided, region, safety, cfg.t_max)
+    }
+
+    /// Close a step already counted in `self.step`: truncated at `t_max` unless
+    /// terminated, `done` set, the transition at the new pose.
+    fn finish(
+        &mut self,
+        reward: f32,
+        terminated: bool,
+        collided: bool,
+        region: RegionKind,
+        safety: SafetyEvents,
+        t_max: u32,
+    ) -> Transition {
+        let truncated = !terminated && self.step >= t_max;
         self.done = terminated || truncated;
         Transition {
             reward,

@@ -90,6 +90,8 @@ pub struct TrafficState {
     /// The zebra the agent is on and whether it stepped on under WALK.
     zebra: Option<(usize, bool)>,
     occupied: Vec<bool>,
+    /// Scratch of the lanes' claims, kept between sub-steps (no allocation per sub-step).
+    claims: Vec<Vec<Claim>>,
 }
 
 impl TrafficState {
@@ -117,6 +119,7 @@ impl TrafficState {
             rng,
             zebra: None,
             occupied: vec![false; traffic.zebras.len()],
+            claims: Vec::new(),
         };
         let h = dt / traffic.substeps as f32;
         while state.t < offset - 1e-9 {
@@ -144,7 +147,9 @@ impl TrafficState {
         // Claims on conflict points: a crossing lane's vehicle that stands across this
         // lane's strip, or is past its own stop line on its way there (committed to
         // the box), with its time to the strip (0 when on it).
-        let mut blocked: Vec<Vec<Claim>> = vec![Vec::new(); traffic.lanes.len()];
+        let mut blocked = std::mem::take(&mut self.claims);
+        blocked.resize_with(traffic.lanes.len(), Vec::new);
+        blocked.iter_mut().for_each(Vec::clear);
         for (i, lane) in traffic.lanes.iter().enumerate() {
             for &(j, s_here, s_there) in &lane.conflicts {
                 let other = &traffic.lanes[j];
@@ -178,6 +183,7 @@ impl TrafficState {
                 &mut self.rng,
             );
         }
+        self.claims = blocked;
         self.t += h as f64;
     }
 
@@ -195,14 +201,14 @@ impl TrafficState {
         let n = traffic.substeps;
         let h = dt / n as f32;
         let mut hit = false;
-        let mut peds = Vec::with_capacity(self.walkers.len() + 1);
         // Walkers move once per decision step (their social force is stable at
-        // 0.25 s: h/τ = 0.5), vehicles every sub-step.
+        // 0.25 s: h/τ = 0.5), vehicles every sub-step; the pedestrians the
+        // drivers yield to stand where they are for the whole step.
         walker::advance(&mut self.walkers, traffic, ground, agent, agent_radius, self.t, dt, &mut self.rng);
+        let mut peds = Vec::with_capacity(self.walkers.len() + 1);
+        peds.push(agent);
+        peds.extend(self.walkers.iter().map(|w| w.pos));
         for _ in 0..n {
-            peds.clear();
-            peds.push(agent);
-            peds.extend(self.walkers.iter().map(|w| w.pos));
             self.advance_vehicles(traffic, h, &peds);
             hit |= self.vehicle_hits(traffic, agent, agent_radius);
         }
