@@ -29,7 +29,7 @@ use pednav_runtime::weights::WeightsClient;
 use pednav_runtime::write_health::WriteHealth;
 use pednav_runtime::{ActorPolicy, Ipc, Metrics, RunConfig, RunDir, StopFlag, run_prefix};
 use pednav_sim::policy::RandomPolicy;
-use pednav_sim::{BackendChoice, DiscountedReturn, ObsMode, Policy, Pose, STATE_OBS_DIM, SimWorld, VecEnv};
+use pednav_sim::{BackendChoice, DiscountedReturn, ObsMode, Policy, Pose, STATE_OBS_MAX, SimWorld, VecEnv};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
@@ -267,6 +267,7 @@ impl ActorProcess {
         }
         let t0 = Instant::now();
         let states = self.states();
+        let state_dim = self.envs.state_dim();
         let frames = if self.pixels { Some(self.envs.render()?) } else { None };
         for &e in &starting {
             let ep = self.episodes[e].as_ref().expect("just started");
@@ -281,7 +282,7 @@ impl ActorProcess {
                 state: states[e],
                 ..StepHeader::default()
             };
-            let Some(bytes) = self.steps.send(header, observation(frames.as_ref(), &states, e))? else {
+            let Some(bytes) = self.steps.send(header, observation(frames.as_ref(), &states, state_dim, e))? else {
                 return Ok(false);
             };
             acting(&mut self.random, &mut self.learned)
@@ -296,9 +297,9 @@ impl ActorProcess {
 
     /// Every environment's state vector when records carry it, else zeros (nobody
     /// reads them: pixels without the state-prediction loss).
-    fn states(&self) -> Vec<[f32; STATE_OBS_DIM]> {
+    fn states(&self) -> Vec<[f32; STATE_OBS_MAX]> {
         let m = self.envs.num_envs();
-        if self.send_state { (0..m).map(|e| self.envs.state_obs(e)).collect() } else { vec![[0.0; STATE_OBS_DIM]; m] }
+        if self.send_state { (0..m).map(|e| self.envs.state_obs(e)).collect() } else { vec![[0.0; STATE_OBS_MAX]; m] }
     }
 
     fn choose_actions(&mut self) -> Result<()> {
@@ -317,6 +318,7 @@ impl ActorProcess {
         self.timing.sim += t0.elapsed().as_secs_f64();
         let t0 = Instant::now();
         let states = self.states();
+        let state_dim = self.envs.state_dim();
         let frames = if self.pixels { Some(self.envs.render()?) } else { None };
         let mut ended = Vec::new();
         for (e, t) in transitions.iter().enumerate() {
@@ -343,7 +345,7 @@ impl ActorProcess {
                 base: 0, // the writer fills in its window's base
                 state: states[e],
             };
-            let Some(bytes) = self.steps.send(header, observation(frames.as_ref(), &states, e))? else {
+            let Some(bytes) = self.steps.send(header, observation(frames.as_ref(), &states, state_dim, e))? else {
                 return Ok(false);
             };
             if !(t.terminated || t.truncated) {
@@ -491,14 +493,16 @@ fn acting<'a>(random: &'a mut Option<RandomPolicy>, learned: &'a mut ActingPolic
     }
 }
 
-/// Environment `e`'s observation: its view of the batch render, or its state vector.
+/// Environment `e`'s observation: its view of the batch render, or the first
+/// `state_dim` entries of its state vector.
 fn observation<'a>(
     frames: Option<&'a pednav_sim::Frames<'a>>,
-    states: &'a [[f32; STATE_OBS_DIM]],
+    states: &'a [[f32; STATE_OBS_MAX]],
+    state_dim: usize,
     e: usize,
 ) -> StepPayload<'a> {
     match frames {
         Some(frames) => StepPayload::Frame { frames, env: e },
-        None => StepPayload::State(&states[e]),
+        None => StepPayload::State(&states[e][..state_dim]),
     }
 }

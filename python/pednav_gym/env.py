@@ -53,7 +53,9 @@ class CornerEnv(gym.Env[np.ndarray, np.ndarray]):
 
     Observation: ``uint8`` frames of shape ``(image_size, image_size, 1)`` (``obs_mode=
     "pixels"``, the paper's) or the 22 ``float32`` of the state observation
-    (``obs_mode="state"``: goal in the body frame, heading, head yaw, map rewards around).
+    (``obs_mode="state"``: goal in the body frame, heading, head yaw, map rewards around;
+    with ``traffic`` on, 28 more: the nearest zebra's ends, its signal and time left,
+    the four nearest vehicles' positions and velocities — ``pednav_sim::state_obs``).
     Action: ``Box(-1, 1, (3,), float32)`` — speed ``(a₀+1)/2 · max_speed``, yaw rate
     ``a₁ · max_yaw_rate_deg``, head yaw ``a₂ · max_head_yaw_deg`` relative to the body;
     values outside [−1, 1] are clipped, as in Rust. Reward: pednav-sim's, per decision

@@ -79,6 +79,8 @@ mod extension {
     const ACTION_HIGH: f32 = super::ACTION_HIGH;
     #[pymodule_export]
     const STATE_DIM: usize = pednav_sim::STATE_OBS_DIM;
+    #[pymodule_export]
+    const TRAFFIC_STATE_DIM: usize = pednav_sim::TRAFFIC_STATE_DIM;
 
     /// Give the graphics stack a private runtime directory when none is set, as the
     /// simulator's commands do (`pednav_sim::prepare_headless_env`, which does nothing

@@ -6,12 +6,13 @@
 //!   row-major, top row first — [`pednav_sim::Frames::copy_frame`]'s layout, read from
 //!   one render of all M views;
 //! - state mode: the M state vectors one after another, each
-//!   [`STATE_OBS_DIM`] `f32` in the machine's byte order ([`VecEnv::state_obs`]).
+//!   [`VecEnv::state_dim`] `f32` in the machine's byte order ([`VecEnv::state_obs`]:
+//!   22, or 50 with traffic).
 //!
 //! Invariant: after [`write`] the buffer holds exactly one observation per environment
 //! of the world's observation mode, in environment order, and nothing else.
 
-use pednav_sim::{ObsMode, STATE_OBS_DIM, SimError, SimWorld, VecEnv};
+use pednav_sim::{ObsMode, STATE_OBS_DIM, SimError, SimWorld, TRAFFIC_STATE_DIM, VecEnv};
 
 /// Replace the contents of `out` with the current observation of every environment.
 pub fn write(envs: &mut VecEnv, out: &mut Vec<u8>) -> Result<(), SimError> {
@@ -28,9 +29,10 @@ pub fn write(envs: &mut VecEnv, out: &mut Vec<u8>) -> Result<(), SimError> {
             }
         }
         ObsMode::State => {
-            out.reserve(count * STATE_OBS_DIM * size_of::<f32>());
+            let dim = envs.state_dim();
+            out.reserve(count * dim * size_of::<f32>());
             for env in 0..count {
-                for value in envs.state_obs(env) {
+                for value in envs.state_obs(env).into_iter().take(dim) {
                     out.extend_from_slice(&value.to_ne_bytes());
                 }
             }
@@ -53,8 +55,11 @@ const BOUND_SLACK: f32 = 1e-3;
 /// layout documented in `pednav_sim::state_obs`: the goal offset is at most the distance
 /// from the goal centre to the farthest corner of the world (the pedestrian never leaves
 /// it); heading cosine and sine and the head yaw fraction lie in [−1, 1]; the map rewards
-/// are the scene's. Checked against real observations by python/tests (`check_env`
-/// asserts every observation lies in the space).
+/// are the scene's. With traffic: the zebra's ends lie in the world (the same reach
+/// from any point of it, the world's diagonal), flags and time fractions in [0, 1],
+/// each vehicle slot's centre within its range and its velocity within the drivers'
+/// desired speed (IDM never exceeds it; 5 % slack). Checked against real observations by
+/// python/tests (`check_env` asserts every observation lies in the space).
 pub fn state_bounds(world: &SimWorld) -> (Vec<f32>, Vec<f32>) {
     let [goal_x, goal_y] = world.scene.goal_center;
     let extent = &world.scene.extent;
@@ -64,12 +69,25 @@ pub fn state_bounds(world: &SimWorld) -> (Vec<f32>, Vec<f32>) {
     let table = world.scene.rewards().map_reward_table();
     let lowest_reward = table.iter().copied().fold(f32::INFINITY, f32::min) / MAP_REWARD_SCALE;
     let highest_reward = table.iter().copied().fold(f32::NEG_INFINITY, f32::max) / MAP_REWARD_SCALE;
+    use pednav_sim::state_obs::{POSITION_SCALE_M, VEHICLE_RANGE, VEHICLE_SPEED_SCALE};
+    let diagonal = (extent.max[0] - extent.min[0]).hypot(extent.max[1] - extent.min[1]) / POSITION_SCALE_M;
+    let vehicle_reach = VEHICLE_RANGE / POSITION_SCALE_M;
+    let speed = world.traffic.as_ref().map_or(1.0, |(t, _)| 1.05 * t.driver.desired_speed / VEHICLE_SPEED_SCALE);
+    let traffic = (0..TRAFFIC_STATE_DIM).map(|entry| match entry {
+        0..=3 => (-diagonal, diagonal),
+        4..=7 => (0.0, 1.0),
+        k if (k - 8) % 5 == 0 => (0.0, 1.0),
+        k if (k - 8) % 5 <= 2 => (-vehicle_reach, vehicle_reach),
+        _ => (-speed, speed),
+    });
+    let count = if world.traffic.is_some() { TRAFFIC_STATE_DIM } else { 0 };
     (0..STATE_OBS_DIM)
         .map(|entry| match entry {
             0 | 1 => (-goal_offset, goal_offset),
             2..=4 => (-1.0, 1.0),
             _ => (lowest_reward, highest_reward),
         })
+        .chain(traffic.take(count))
         .map(|(low, high)| (low - BOUND_SLACK, high + BOUND_SLACK))
         .unzip()
 }

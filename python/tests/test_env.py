@@ -89,8 +89,12 @@ def test_info_carries_the_rewards_parts_which_sum_to_the_reward() -> None:
 def test_traffic_is_a_keyword_and_its_safety_events_are_in_info() -> None:
     env = make(obs_mode="state", start="validation", t_max=800, traffic="heavy", traffic_non_yielding=1.0)
     check_env(env.unwrapped, skip_render_check=True)
-    _, info = env.reset(seed=4, options={"start": (0.0, -2.5, 90.0)})  # standing in a lane of the crossing box
+    obs, info = env.reset(seed=4, options={"start": (0.0, -2.5, 90.0)})  # standing in a lane of the crossing box
     assert {"vehicle_hit", "dont_walk_entry", "pedestrian_bump", "kerb_wait", "reward_traffic"} <= set(info)
+    # The state preset knows the traffic: 28 entries after the scene's 22 (pednav_sim::state_obs).
+    assert obs.shape == (pednav_gym._pednav.STATE_DIM + pednav_gym._pednav.TRAFFIC_STATE_DIM,) == (50,)
+    assert obs[30] == 1.0, "heavy traffic has a vehicle within 40 m of the crossing's centre"
+    assert sum(obs[26:28]) <= 1.0, "WALK and the clearance never show at once"
     for _ in range(800):
         _, reward, terminated, truncated, info = env.step(np.array([-1.0, 0.0, 0.0], dtype=np.float32))
         parts = np.float32(info["reward_map"]) + np.float32(info["reward_speed"])

@@ -22,7 +22,7 @@ use pednav_runtime::messages::{
     TaskRequest, TaskResponse, WeightsHeader,
 };
 use pednav_runtime::reliable::Ack;
-use pednav_sim::STATE_OBS_DIM;
+use pednav_sim::STATE_OBS_MAX;
 
 use crate::error::{BridgeError, Result};
 
@@ -255,7 +255,7 @@ impl<'a> Dec<'a> {
 
 /// A step record: its header, then the observation (a frame or a state vector).
 pub fn encode_step(h: &StepHeader, observation: &[u8]) -> Vec<u8> {
-    let mut e = Enc::new(Kind::Step, 96 + 4 * STATE_OBS_DIM + observation.len());
+    let mut e = Enc::new(Kind::Step, 96 + 4 * STATE_OBS_MAX + observation.len());
     e.u32(h.actor);
     e.u32(h.env);
     e.u32(h.incarnation);
@@ -543,7 +543,7 @@ mod tests {
         (
             (any::<u32>(), any::<u32>(), any::<u32>(), any::<u32>(), any::<u64>(), any::<u32>()),
             (any_f32(), proptest::array::uniform3(any_f32()), any::<u64>(), any::<u64>(), any::<u64>()),
-            proptest::collection::vec(any_f32(), STATE_OBS_DIM),
+            proptest::collection::vec(any_f32(), STATE_OBS_MAX),
         )
             .prop_map(
                 |((actor, env, incarnation, flags, episode, step), (reward, action, pv, seq, base), state)| {

@@ -16,6 +16,9 @@ pub enum ExperimentError {
     /// Drawing failed.
     #[error("plot: {0}")]
     Plot(String),
+    /// A probe could not be set up.
+    #[error("probe: {0}")]
+    Probe(String),
     /// A diagnosis could not be computed.
     #[error("diagnosis: {0}")]
     Diagnosis(String),

@@ -20,7 +20,7 @@ use pednav_policy::{ActingPolicy, Sampling, action_rows};
 use pednav_runtime::RunConfig;
 use pednav_sim::draw::Film;
 use pednav_sim::oracle::{Oracle, OracleConfig};
-use pednav_sim::policy::{OraclePolicy, RandomPolicy};
+use pednav_sim::policy::{OraclePolicy, RandomPolicy, StandStillPolicy};
 use pednav_sim::{Action, BackendChoice, DiscountedReturn, ObsMode, Policy, Pose, SimConfig, SimWorld, VecEnv};
 
 use crate::error::{ExperimentError, Result};
@@ -37,6 +37,8 @@ pub enum PolicyKind {
     },
     /// Uniform random actions (the random-walk baseline).
     Random,
+    /// Standing still at the start: what never crossing is worth.
+    StandStill,
     /// The oracle planner's greedy action (an upper reference); with traffic, gated
     /// by the signals and vehicles ([`pednav_sim::policy::traffic_gate`]).
     Oracle,
@@ -148,6 +150,7 @@ impl Evaluator {
                 EvalPolicy::Learned(ActingPolicy::new(nets, &cfg, envs, sampling))
             }
             PolicyKind::Random => EvalPolicy::Reference(Box::new(RandomPolicy::new(seed))),
+            PolicyKind::StandStill => EvalPolicy::Reference(Box::new(StandStillPolicy)),
             PolicyKind::Oracle => EvalPolicy::Reference(Box::new(OraclePolicy::new(Oracle::plan(
                 &world,
                 OracleConfig { gamma, ..OracleConfig::default() },

@@ -9,8 +9,11 @@
 //! - [`diagnose`]: what a trained agent learned along its evaluation episodes
 //!   (a linear probe of the encoder for pose and return, the critic against
 //!   Monte-Carlo returns);
-//! - [`recognisability`]: which corner of the intersection a single frame shows
-//!   (a small CNN; with the simulator's aliasing measure, `pednav-recognisability`);
+//! - [`probe`]: what a frame or a short history shows — a small CNN trained on
+//!   held-out examples (which corner: `pednav-recognisability`, with the simulator's
+//!   aliasing measure);
+//! - [`traffic_probe`]: at the kerb with traffic on, can the signal's WALK and a
+//!   vehicle about to cross be read from the pixels (`pednav-traffic-probe`);
 //! - [`table`]: Table III's aggregation (mean ± std per point, Avg.Int, Avg.Ext,
 //!   success rate, oracle);
 //! - [`plots`]: Fig. 3 (return and episodes vs decision steps), Fig. 4 snapshots,
@@ -23,8 +26,9 @@ pub mod diagnose;
 pub mod error;
 pub mod evaluate;
 pub mod plots;
+pub mod probe;
 pub mod protocol;
-pub mod recognisability;
 pub mod table;
+pub mod traffic_probe;
 
 pub use error::{ExperimentError, Result};

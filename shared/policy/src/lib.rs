@@ -105,7 +105,8 @@ impl ActingPolicy {
                 (stream.features(self.nets.acting_encoder(), &all)?, obs)
             }
             None => {
-                let s: Vec<f32> = (0..m).flat_map(|e| envs.state_obs(e)).collect();
+                let d = envs.state_dim();
+                let s: Vec<f32> = (0..m).flat_map(|e| envs.state_obs(e).into_iter().take(d)).collect();
                 let obs = Obs::State(Tensor::from_vec(s, (m, self.state_dim), &self.device)?);
                 (self.nets.acting_encoder().encode(&obs)?, keep_obs.then_some(obs))
             }

@@ -128,7 +128,7 @@ fn the_mode_is_tanh_mu_of_the_state_vector() {
     let cfg = NetsConfig { encoder: EncoderKind::Mlp, ..Default::default() };
     let envs = envs(2);
     let nets = DsacNets::new(&cfg, &Device::Cpu, 6).unwrap();
-    let s: Vec<f32> = (0..2).flat_map(|e| envs.state_obs(e)).collect();
+    let s: Vec<f32> = (0..2).flat_map(|e| envs.state_obs(e).into_iter().take(envs.state_dim())).collect();
     let obs = Obs::State(Tensor::from_vec(s, (2, cfg.state_dim), &Device::Cpu).unwrap());
     let expected =
         action_rows(&nets.policy.head(&nets.acting_encoder().encode(&obs).unwrap()).unwrap().mode().unwrap()).unwrap();

@@ -12,7 +12,7 @@ use std::path::{Path, PathBuf};
 
 use pednav_config::{CurriculumConfig, DsacConfig, FrameKind, ReplayConfig};
 use pednav_nets::{DeviceSpec, EncoderKind, NetsConfig};
-use pednav_sim::{ObsMode, STATE_OBS_DIM, Scene, SimConfig};
+use pednav_sim::{ObsMode, STATE_OBS_DIM, Scene, SimConfig, state_obs_dim};
 use serde::{Deserialize, Serialize};
 
 use crate::channels::HELD_REPORTS;
@@ -240,22 +240,30 @@ impl RunConfig {
                 if self.nets.encoder != EncoderKind::Mlp {
                     return bad("nets.encoder", format!("{:?}", self.nets.encoder), "state observations need \"mlp\"");
                 }
-                if self.nets.state_dim != STATE_OBS_DIM {
+                let dim = state_obs_dim(&self.sim);
+                if self.nets.state_dim != dim {
                     return bad(
                         "nets.state_dim",
                         self.nets.state_dim.to_string(),
-                        &format!("the simulator's state observation has {STATE_OBS_DIM} values"),
+                        &format!(
+                            "the simulator's state observation has {dim} values with sim.traffic = {:?} \
+                             ({STATE_OBS_DIM} of the scene, {} more with traffic): set nets.state_dim = {dim}",
+                            self.sim.traffic,
+                            pednav_sim::TRAFFIC_STATE_DIM
+                        ),
                     );
                 }
             }
         }
-        if self.dsac.builds_state_head() && self.nets.state_dim != STATE_OBS_DIM {
+        let dim = state_obs_dim(&self.sim);
+        if self.dsac.builds_state_head() && self.nets.state_dim != dim {
             return bad(
                 "nets.state_dim",
                 self.nets.state_dim.to_string(),
                 &format!(
-                    "dsac.state_aux_weight > 0 predicts the simulator's state vector of {STATE_OBS_DIM} values: \
-                     set nets.state_dim = {STATE_OBS_DIM}"
+                    "dsac.state_aux_weight > 0 predicts the simulator's state vector of {dim} values \
+                     (sim.traffic = {:?}): set nets.state_dim = {dim}",
+                    self.sim.traffic
                 ),
             );
         }
@@ -364,7 +372,7 @@ impl RunConfig {
     pub fn observation_bytes(&self) -> usize {
         match self.sim.obs_mode {
             ObsMode::Pixels => (self.sim.image_size * self.sim.image_size) as usize,
-            ObsMode::State => crate::messages::state_payload::bytes(STATE_OBS_DIM),
+            ObsMode::State => crate::messages::state_payload::bytes(state_obs_dim(&self.sim)),
         }
     }
 }
@@ -474,6 +482,14 @@ mod tests {
         cfg.nets.history = 8;
         let e = cfg.validate("x").unwrap_err().to_string();
         assert!(e.contains("nets.history") && e.contains("history") && e.contains("8") && e.contains("state"), "{e}");
+        // With traffic the state observation is longer (the traffic part).
+        cfg.nets.history = 1;
+        cfg.sim.traffic = pednav_sim::TrafficLevel::Medium;
+        let e = cfg.validate("x").unwrap_err().to_string();
+        assert!(e.contains("nets.state_dim") && e.contains("50") && e.contains("Medium"), "{e}");
+        cfg.nets.state_dim = 50;
+        cfg.validate("x").unwrap();
+        assert_eq!(cfg.observation_bytes(), crate::messages::state_payload::bytes(50));
         let mut cfg = RunConfig::default();
         cfg.dsac.state_aux_weight = 1.0;
         cfg.validate("x").unwrap();

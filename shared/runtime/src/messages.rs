@@ -114,7 +114,7 @@ pub mod state_payload {
 /// `image_size²` u8 frame, or the f32 state vector as bytes in state mode),
 /// written by the actor straight into the loaned shared-memory sample.
 #[repr(C)]
-#[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend)]
+#[derive(Debug, Clone, Copy, PartialEq, ZeroCopySend)]
 pub struct StepHeader {
     /// Actor id (0 … actors−1).
     pub actor: u32,
@@ -143,11 +143,32 @@ pub struct StepHeader {
     /// (a restarted one) starts here ([`crate::reliable`]).
     pub base: u64,
     /// The simulator's state vector at the new observation
-    /// ([`pednav_sim::state_obs::state_observation`]) when the learner uses it as the
-    /// target of the state-prediction auxiliary loss (`dsac.state_aux_weight` > 0) or
-    /// in state mode, zeros otherwise. Privileged: it never reaches the policy's
+    /// ([`pednav_sim::state_obs::state_observation`]: its first
+    /// [`pednav_sim::state_obs_dim`] entries, zeros after) when the learner uses it as
+    /// the target of the state-prediction auxiliary loss (`dsac.state_aux_weight` > 0)
+    /// or in state mode, zeros otherwise. Privileged: it never reaches the policy's
     /// input (in state mode the observation is the payload).
-    pub state: [f32; pednav_sim::STATE_OBS_DIM],
+    pub state: [f32; pednav_sim::STATE_OBS_MAX],
+}
+
+impl Default for StepHeader {
+    /// All zeros (std derives `Default` for arrays of at most 32 only).
+    fn default() -> StepHeader {
+        StepHeader {
+            actor: 0,
+            env: 0,
+            incarnation: 0,
+            flags: StepFlags::default(),
+            episode: 0,
+            step: 0,
+            reward: 0.0,
+            action: [0.0; 3],
+            policy_version: 0,
+            seq: 0,
+            base: 0,
+            state: [0.0; pednav_sim::STATE_OBS_MAX],
+        }
+    }
 }
 
 impl StepHeader {

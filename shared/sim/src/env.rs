@@ -39,7 +39,7 @@ use crate::render::{
     BackendChoice, CameraView, DynamicBatch, Frames, Instance, Look, Prototype, Renderer, RendererConfig,
 };
 use crate::scene::{Pose, RegionKind};
-use crate::state_obs::{STATE_OBS_DIM, state_observation};
+use crate::state_obs::{STATE_OBS_MAX, state_obs_dim, state_observation};
 use crate::traffic::{
     HeadKind, PEDESTRIAN_HEAD, SafetyEvents, TrafficState, VEHICLE_HEAD, VehicleSignal, VehicleStyle,
 };
@@ -277,9 +277,16 @@ impl VecEnv {
         Ok(renderer.render_with(&self.cameras, batch)?)
     }
 
-    /// State observation of environment `env` (any mode).
-    pub fn state_obs(&self, env: usize) -> [f32; STATE_OBS_DIM] {
-        state_observation(&self.world, &self.peds[env])
+    /// State observation of environment `env` (any mode): its first
+    /// [`VecEnv::state_dim`] entries, then zeros.
+    pub fn state_obs(&self, env: usize) -> [f32; STATE_OBS_MAX] {
+        state_observation(&self.world, &self.peds[env], self.traffic[env].as_ref())
+    }
+
+    /// Length of the state observation ([`crate::state_obs::state_obs_dim`]: 22, or
+    /// 50 with traffic).
+    pub fn state_dim(&self) -> usize {
+        state_obs_dim(&self.world.config)
     }
 }
 
@@ -303,8 +310,8 @@ pub struct Info {
 pub enum Observation {
     /// `image_size²` greyscale bytes, row-major, top row first.
     Pixels(Vec<u8>),
-    /// The state-debug vector.
-    State([f32; STATE_OBS_DIM]),
+    /// The state-debug vector ([`VecEnv::state_dim`] entries).
+    State(Vec<f32>),
 }
 
 /// Result of [`Env::step`].
@@ -359,7 +366,7 @@ impl PedestrianEnv {
     fn observe(&mut self) -> Result<Observation> {
         Ok(match self.inner.world.config.obs_mode {
             ObsMode::Pixels => Observation::Pixels(self.inner.render()?.frame(0)),
-            ObsMode::State => Observation::State(self.inner.state_obs(0)),
+            ObsMode::State => Observation::State(self.inner.state_obs(0)[..self.inner.state_dim()].to_vec()),
         })
     }
 }

@@ -50,6 +50,6 @@ pub use render::{BackendChoice, CameraView, Frames, Look, Renderer, RendererConf
 pub use returns::DiscountedReturn;
 pub use reward::Rewards;
 pub use scene::{Pose, Scene};
-pub use state_obs::STATE_OBS_DIM;
+pub use state_obs::{STATE_OBS_DIM, STATE_OBS_MAX, TRAFFIC_STATE_DIM, state_obs_dim};
 pub use traffic::{SafetyEvents, Traffic, TrafficState};
 pub use world::SimWorld;

@@ -78,6 +78,17 @@ impl Policy for RandomPolicy {
     }
 }
 
+/// Standing still where the episode starts (no speed, no turn, head ahead): the
+/// return of never crossing, a reference for what waiting for ever is worth.
+pub struct StandStillPolicy;
+
+impl Policy for StandStillPolicy {
+    fn act(&mut self, _envs: &VecEnv, actions: &mut [Action]) -> Result<(), PolicyError> {
+        actions.fill([-1.0, 0.0, 0.0]);
+        Ok(())
+    }
+}
+
 /// The oracle planner's greedy action ([`Oracle::best_action`]) in every environment.
 ///
 /// With traffic it also knows the signal plan and sees the vehicles: from off the
@@ -212,5 +223,19 @@ mod tests {
         policy.act(&envs, &mut got).unwrap();
         assert_eq!(got, expected);
         assert!(!policy.needs_frames());
+    }
+
+    /// Standing still keeps the start pose: no speed, no turn (and the head ahead).
+    #[test]
+    fn standing_still_never_moves() {
+        let mut envs = envs(2);
+        let start = envs.pedestrian(0).pose;
+        let mut actions = vec![[0.5; 3]; 2];
+        for _ in 0..20 {
+            StandStillPolicy.act(&envs, &mut actions).unwrap();
+            assert_eq!(actions, vec![[-1.0, 0.0, 0.0]; 2]);
+            envs.step(&actions).unwrap();
+        }
+        assert_eq!(envs.pedestrian(0).pose, start);
     }
 }

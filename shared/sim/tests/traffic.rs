@@ -282,3 +282,76 @@ fn the_oracle_waits_for_walk_and_crosses_without_a_hit_or_a_violation() {
     assert_eq!(reached, 6, "the oracle reaches the goal from every phase");
     assert!(waited > 0, "over six phases it waits at the kerb at least once");
 }
+
+/// The state preset knows the traffic: with traffic on the observation has 28
+/// entries more, its first 22 exactly those of the same pose without traffic, its
+/// signal entries the plan's, its vehicle slots the nearest vehicles, nearest first,
+/// where they are and as fast as they drive.
+#[test]
+fn the_state_observation_carries_the_signal_and_the_nearest_vehicles() {
+    use pednav_sim::state_obs::{NEAREST_VEHICLES, POSITION_SCALE_M, VEHICLE_RANGE, VEHICLE_SPEED_SCALE};
+    let on = world(TrafficLevel::Heavy, ObsMode::State);
+    let off = world(TrafficLevel::Off, ObsMode::State);
+    let (traffic, _) = on.traffic.as_ref().unwrap();
+    let mut a = VecEnv::new(on.clone(), 1, BackendChoice::Auto).unwrap();
+    let mut b = VecEnv::new(off.clone(), 1, BackendChoice::Auto).unwrap();
+    assert_eq!((a.state_dim(), b.state_dim()), (50, 22));
+    let pose = Pose::from_degrees(13.0, -6.6, 90.0); // at the south kerb of zebra 0, facing across
+    let mut seen_walk = false;
+    for seed in 0..40u64 {
+        a.reset(0, pose, seed).unwrap();
+        b.reset(0, pose, seed).unwrap();
+        for _ in 0..(seed % 5) {
+            a.step(&[[-1.0, 0.0, 0.0]]).unwrap();
+            b.step(&[[-1.0, 0.0, 0.0]]).unwrap();
+        }
+        let (o, plain) = (a.state_obs(0), b.state_obs(0));
+        assert_eq!(o[..22], plain[..22], "seed {seed}: the scene's part changed with traffic");
+        assert!(plain[22..].iter().all(|&v| v == 0.0));
+        let state = a.traffic(0).unwrap();
+        // The nearest zebra (by distance to its bounding rectangle): its signal, times left.
+        let gap = |z: &pednav_sim::traffic::Zebra| {
+            let r = z.bounds;
+            (r.min[0] - pose.x)
+                .max(pose.x - r.max[0])
+                .max(0.0)
+                .hypot((r.min[1] - pose.y).max(pose.y - r.max[1]).max(0.0))
+        };
+        let zi = (0..traffic.zebras.len())
+            .min_by(|&i, &j| gap(&traffic.zebras[i]).total_cmp(&gap(&traffic.zebras[j])))
+            .unwrap();
+        let near = [o[22], o[23]].map(|v| v * POSITION_SCALE_M);
+        assert!(near[0].hypot(near[1]) < 3.0, "seed {seed}: nearer end {near:?}");
+        let shown = traffic.plan.pedestrian(zi, state.t);
+        assert_eq!(o[26] == 1.0, shown == PedestrianSignal::Walk, "seed {seed}");
+        assert_eq!(o[27] == 1.0, shown == PedestrianSignal::Clearance, "seed {seed}");
+        let until = (traffic.plan.until_walk(zi, state.t) / traffic.plan.cycle_s) as f32;
+        assert!((o[28] - until).abs() < 1e-6 && (0.0..=1.0).contains(&o[29]), "seed {seed}: {:?}", &o[22..30]);
+        assert_eq!(o[29] > 0.0, shown != PedestrianSignal::DontWalk, "seed {seed}");
+        seen_walk |= shown == PedestrianSignal::Walk;
+        // Vehicle slots: present ones first, nearest first, matching real vehicles.
+        let mut all: Vec<(f32, [f32; 2], f32)> = traffic
+            .lanes
+            .iter()
+            .zip(&state.lanes)
+            .flat_map(|(lane, lt)| lt.vehicles.iter().map(move |v| (v.center(lane), v.v)))
+            .map(|(c, v)| ((c[0] - pose.x).hypot(c[1] - pose.y), c, v))
+            .filter(|(d, _, _)| *d <= VEHICLE_RANGE)
+            .collect();
+        all.sort_by(|x, y| x.0.total_cmp(&y.0));
+        for (k, slot) in o[30..].chunks(5).enumerate() {
+            assert_eq!(NEAREST_VEHICLES, 4);
+            match all.get(k) {
+                None => assert!(slot.iter().all(|&v| v == 0.0), "seed {seed}: slot {k} {slot:?}"),
+                Some((d, _, v)) => {
+                    assert_eq!(slot[0], 1.0);
+                    let dist = slot[1].hypot(slot[2]) * POSITION_SCALE_M;
+                    assert!((dist - d).abs() < 1e-3, "seed {seed}: slot {k} at {dist}, vehicle at {d}");
+                    let speed = slot[3].hypot(slot[4]) * VEHICLE_SPEED_SCALE;
+                    assert!((speed - v).abs() < 1e-3, "seed {seed}: slot {k} speed {speed}, vehicle {v}");
+                }
+            }
+        }
+    }
+    assert!(seen_walk, "40 starts never saw WALK at the nearest zebra");
+}

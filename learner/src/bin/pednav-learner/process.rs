@@ -89,7 +89,7 @@ impl Learner {
             action: h.action,
             reward: h.reward,
             terminal: h.has(StepFlags::TERMINAL),
-            state_target: Some(&h.state),
+            state_target: Some(&h.state[..self.replay.state_target_dim().min(h.state.len())]),
         })?;
         if self.received > self.refill_until {
             self.limiter.inserted(1);

@@ -38,6 +38,9 @@ enum PolicyArg {
     Untrained,
     /// Uniform random actions (random-walk baseline).
     Random,
+    /// Standing still at the start: the return of never crossing (with traffic, a
+    /// policy that never dares to cross scores this).
+    StandStill,
     /// The oracle planner (with traffic: waits for WALK and for gaps in the vehicles).
     Oracle,
     /// With traffic: the oracle planner of the empty crossing, walking through signals
@@ -145,6 +148,7 @@ fn policy_arg(p: PolicyArg) -> &'static str {
         PolicyArg::Learned => "learned",
         PolicyArg::Untrained => "untrained",
         PolicyArg::Random => "random",
+        PolicyArg::StandStill => "stand-still",
         PolicyArg::Oracle => "oracle",
         PolicyArg::OracleIgnoringTraffic => "oracle-ignoring-traffic",
     }
@@ -156,6 +160,7 @@ fn kind(cli: &Cli) -> PolicyKind {
             PolicyKind::Learned { deterministic: cli.mode == ActionMode::Mode }
         }
         PolicyArg::Random => PolicyKind::Random,
+        PolicyArg::StandStill => PolicyKind::StandStill,
         PolicyArg::Oracle => PolicyKind::Oracle,
         PolicyArg::OracleIgnoringTraffic => PolicyKind::OracleIgnoringTraffic,
     }

@@ -6,21 +6,20 @@
 //! pednav-recognisability --config deploy/configs/cpu_reduced.toml --domain-randomization
 //! ```
 //! Two measures over seeded random sidewalk poses (module docs of
-//! `pednav_sim::recognisability` and `pednav_experiments::recognisability`):
+//! `pednav_sim::recognisability` and `pednav_experiments::probe`):
 //! (a) aliasing — the share of test poses whose frame is closer (L2) to one of its
 //! 90° / 180° / 270° twins about the crossing's centre than to its own 0.5 m / 10°
 //! step; (b) which corner — the held-out accuracy of a small CNN trained on other
 //! poses to name the quadrant from one frame. Writes `recognisability.json` and
 //! `twins.png` (test poses in their four rotations, one row each) to `--out`.
 
-use std::io::IsTerminal;
 use std::path::PathBuf;
 use std::time::Instant;
 
 use anyhow::{Context, Result, bail};
 use clap::Parser;
 use image::RgbImage;
-use pednav_experiments::recognisability::{ClassifierConfig, Frames, train_and_test};
+use pednav_experiments::probe::{ClassifierConfig, EpochProgress, Frames, ProbeShape, train_and_test};
 use pednav_runtime::RunConfig;
 use pednav_sim::draw::{enlarge_gray, save_png};
 use pednav_sim::recognisability::{PoseSet, QUADRANT_NAMES, aliasing, render_frames, rotated};
@@ -115,24 +114,15 @@ fn main() -> Result<()> {
     let train_frames = render_frames(&mut renderer, &train.poses, &train.looks, sim.eye_height)?;
     let (test_labels, train_labels) = (test.quadrants(), train.quadrants());
     let cfg = ClassifierConfig { epochs: cli.epochs, seed: cli.seed, ..ClassifierConfig::default() };
-    let tty = std::io::stderr().is_terminal();
+    let progress = EpochProgress::new("classifier", cli.epochs);
     let report = train_and_test(
         Frames { frames: &train_frames, labels: &train_labels },
         Frames { frames: &test_frames, labels: &test_labels },
-        size as usize,
+        ProbeShape::single_frame(size as usize, 4),
         cfg,
-        |epoch, loss| {
-            if tty || epoch == cli.epochs || epoch % 5 == 0 {
-                eprint!("{}    classifier epoch {epoch}/{} loss {loss:.3}", if tty { "\r" } else { "" }, cli.epochs);
-                if !tty {
-                    eprintln!();
-                }
-            }
-        },
+        |epoch, loss| progress.epoch(epoch, loss),
     )?;
-    if tty {
-        eprintln!();
-    }
+    progress.done();
     eprintln!(
         "(b) which corner: {:.1} % of {} held-out frames named right (train {:.1} % of {}; chance 25 %); by corner {}",
         100.0 * report.test_accuracy,
@@ -141,7 +131,7 @@ fn main() -> Result<()> {
         report.train_frames,
         QUADRANT_NAMES
             .iter()
-            .zip(report.test_accuracy_by_quadrant)
+            .zip(&report.test_accuracy_by_class)
             .map(|(n, a)| format!("{n} {:.0} %", 100.0 * a))
             .collect::<Vec<_>>()
             .join(", ")

@@ -121,6 +121,15 @@ impl SignalPlan {
         }
     }
 
+    /// Seconds from `t` until zebra `zebra` shows the steady DON'T WALK (0 when it
+    /// does now): what is left of its WALK and flashing clearance.
+    pub fn until_dont_walk(&self, zebra: usize, t: f64) -> f64 {
+        let (k, tau) = self.phase_at(t);
+        let p = &self.phases[k];
+        let end = p.walk_s + p.clearance_s;
+        if p.walk.contains(&zebra) && tau < end { end - tau } else { 0.0 }
+    }
+
     /// Seconds from `t` until zebra `zebra` next shows WALK (0 when it does now).
     pub fn until_walk(&self, zebra: usize, t: f64) -> f64 {
         if self.pedestrian(zebra, t) == PedestrianSignal::Walk {
@@ -178,6 +187,8 @@ mod tests {
         assert_eq!(p.until_walk(0, 5.0), 0.0);
         assert_eq!(p.until_walk(0, 12.0), 64.0);
         assert_eq!(p.until_walk(2, 12.0), 26.0);
+        assert_eq!([0.0, 12.0, 21.5, 22.0, 40.0].map(|t| p.until_dont_walk(0, t)), [22.0, 10.0, 0.5, 0.0, 0.0]);
+        assert_eq!(p.until_dont_walk(2, 40.0), 20.0);
         // Negative times (the warm-up before an episode) wrap into the cycle.
         assert_eq!(p.vehicle(0, -76.0), VehicleSignal::Green);
     }
