@@ -20,8 +20,9 @@
 
 use std::sync::Arc;
 
+use pednav_sim::policy::STAND_STILL;
 use pednav_sim::traffic::{PedestrianSignal, Traffic, TrafficState};
-use pednav_sim::{Action, BackendChoice, Pose, SimWorld, VecEnv};
+use pednav_sim::{BackendChoice, Pose, SimWorld, VecEnv};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
@@ -116,8 +117,7 @@ pub fn kerb_pose(traffic: &Traffic, rng: &mut impl Rng) -> (Pose, usize) {
     let len = (p[0] - q[0]).hypot(p[1] - q[1]).max(1e-3);
     let out = [(p[0] - q[0]) / len, (p[1] - q[1]) / len];
     let side = [-out[1], out[0]];
-    let b = zebra.bounds;
-    let width = (b.max[0] - b.min[0]) * side[0].abs() + (b.max[1] - b.min[1]) * side[1].abs();
+    let width = zebra.bounds.width() * side[0].abs() + zebra.bounds.height() * side[1].abs();
     let lateral = (0.5 * width - 0.3).max(0.0);
     let back = rng.random_range(0.4f32..1.4);
     let across = if lateral > 0.0 { rng.random_range(-lateral..lateral) } else { 0.0 };
@@ -139,9 +139,6 @@ pub fn vehicle_on_zebra(traffic: &Traffic, state: &TrafficState, zebra: usize) -
             .any(|&(_, s_in, s_out)| lt.vehicles.iter().any(|v| v.s > s_in && v.s - v.length < s_out))
     })
 }
-
-/// Standing still: no speed, no turn, head straight ahead.
-const STAND: Action = [-1.0, 0.0, 0.0];
 
 /// Draw `cfg.examples` kerb examples in `world` (which must have traffic on),
 /// rendering with `backend`; `progress` gets the number of examples done.
@@ -197,13 +194,18 @@ pub fn collect(
         let mut soon = vec![0usize; batch];
         let mut ended = vec![false; batch];
         for step in 1..=cfg.history + horizon {
-            for (e, t) in env.step(&vec![STAND; batch])?.iter().enumerate() {
+            for (e, t) in env.step(&vec![STAND_STILL; batch])?.iter().enumerate() {
                 ended[e] |= t.terminated || t.truncated;
             }
             if step <= cfg.history {
                 let rendered = env.render()?;
                 for (e, f) in frames.iter_mut().enumerate() {
-                    f.extend_from_slice(&box_downsample(&rendered.frame(e), rendered_side, k));
+                    let frame = rendered.frame(e);
+                    if k == 1 {
+                        f.extend_from_slice(&frame);
+                    } else {
+                        f.extend_from_slice(&box_downsample(&frame, rendered_side, k));
+                    }
                 }
             }
             for e in 0..batch {

@@ -208,6 +208,8 @@ impl RunConfig {
                 message: e.message,
             },
         )?;
+        // Length of the simulator's state vector (22, or 50 with traffic).
+        let dim = state_obs_dim(&self.sim);
         match self.sim.obs_mode {
             ObsMode::Pixels => {
                 if self.nets.encoder == EncoderKind::Mlp {
@@ -240,7 +242,6 @@ impl RunConfig {
                 if self.nets.encoder != EncoderKind::Mlp {
                     return bad("nets.encoder", format!("{:?}", self.nets.encoder), "state observations need \"mlp\"");
                 }
-                let dim = state_obs_dim(&self.sim);
                 if self.nets.state_dim != dim {
                     return bad(
                         "nets.state_dim",
@@ -255,7 +256,6 @@ impl RunConfig {
                 }
             }
         }
-        let dim = state_obs_dim(&self.sim);
         if self.dsac.builds_state_head() && self.nets.state_dim != dim {
             return bad(
                 "nets.state_dim",

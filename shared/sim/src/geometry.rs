@@ -52,6 +52,12 @@ impl Rect {
     pub fn height(&self) -> f32 {
         self.max[1] - self.min[1]
     }
+    /// Distance from a point to the rectangle (0 inside or on it).
+    pub fn distance(&self, x: f32, y: f32) -> f32 {
+        let dx = (self.min[0] - x).max(x - self.max[0]).max(0.0);
+        let dy = (self.min[1] - y).max(y - self.max[1]).max(0.0);
+        dx.hypot(dy)
+    }
     /// Do the two rectangles share at least a point?
     pub fn intersects(&self, other: &Rect) -> bool {
         self.min[0] <= other.max[0]

@@ -78,13 +78,16 @@ impl Policy for RandomPolicy {
     }
 }
 
-/// Standing still where the episode starts (no speed, no turn, head ahead): the
-/// return of never crossing, a reference for what waiting for ever is worth.
+/// The action of standing still: no speed, no turn, head straight ahead.
+pub const STAND_STILL: Action = [-1.0, 0.0, 0.0];
+
+/// Standing still where the episode starts ([`STAND_STILL`]): the return of never
+/// crossing, a reference for what waiting for ever is worth.
 pub struct StandStillPolicy;
 
 impl Policy for StandStillPolicy {
     fn act(&mut self, _envs: &VecEnv, actions: &mut [Action]) -> Result<(), PolicyError> {
-        actions.fill([-1.0, 0.0, 0.0]);
+        actions.fill(STAND_STILL);
         Ok(())
     }
 }

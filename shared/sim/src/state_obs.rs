@@ -93,10 +93,7 @@ fn traffic_part(traffic: &Traffic, state: &TrafficState, p: &Pedestrian, o: &mut
     let (x, y, (c, s)) = (p.pose.x, p.pose.y, (p.pose.yaw.cos(), p.pose.yaw.sin()));
     let body = |v: [f32; 2]| [c * v[0] + s * v[1], -s * v[0] + c * v[1]];
     let rel = |q: [f32; 2]| body([q[0] - x, q[1] - y]);
-    let gap = |z: &crate::traffic::Zebra| {
-        let b = z.bounds;
-        (b.min[0] - x).max(x - b.max[0]).max(0.0).hypot((b.min[1] - y).max(y - b.max[1]).max(0.0))
-    };
+    let gap = |z: &crate::traffic::Zebra| z.bounds.distance(x, y);
     if let Some((zi, zebra)) = traffic.zebras.iter().enumerate().min_by(|a, b| gap(a.1).total_cmp(&gap(b.1))) {
         let mut ends = zebra.ends();
         let d = |e: [f32; 2]| (e[0] - x).hypot(e[1] - y);

@@ -91,8 +91,19 @@ struct Cli {
 struct Task<'a> {
     name: &'static str,
     shape: ProbeShape,
-    train: (Vec<Vec<u8>>, &'a [usize]),
-    test: (Vec<Vec<u8>>, &'a [usize]),
+    train: Frames<'a>,
+    test: Frames<'a>,
+}
+
+/// A task reading `frames` (training, test) labelled by `labels` (training, test).
+type Pair<'a, T> = (&'a [T], &'a [T]);
+fn task<'a>(name: &'static str, shape: ProbeShape, frames: Pair<'a, Vec<u8>>, labels: Pair<'a, usize>) -> Task<'a> {
+    Task {
+        name,
+        shape,
+        train: Frames { frames: frames.0, labels: labels.0 },
+        test: Frames { frames: frames.1, labels: labels.1 },
+    }
 }
 
 fn main() -> Result<()> {
@@ -177,34 +188,18 @@ fn main() -> Result<()> {
     let train = draw("training set", cli.seed, cli.examples)?;
     let test = draw("test set", cli.seed ^ 0x7465_7374, cli.test_examples)?;
 
+    // Every probe reads one of two views of the same examples: the last frame, or the history.
+    let (train_last, test_last) = (train.last_frames(), test.last_frames());
     let one = ProbeShape::single_frame(size, 2);
-    let mut tasks = vec![
-        Task {
-            name: "walk_one_frame",
-            shape: one,
-            train: (train.last_frames(), &train.walk),
-            test: (test.last_frames(), &test.walk),
-        },
-        Task {
-            name: "vehicle_one_frame",
-            shape: one,
-            train: (train.last_frames(), &train.vehicle_soon),
-            test: (test.last_frames(), &test.vehicle_soon),
-        },
-    ];
+    let walk = (&train.walk[..], &test.walk[..]);
+    let vehicle = (&train.vehicle_soon[..], &test.vehicle_soon[..]);
+    let last = (&train_last[..], &test_last[..]);
+    let mut tasks = vec![task("walk_one_frame", one, last, walk), task("vehicle_one_frame", one, last, vehicle)];
     if !cli.no_history && history > 1 {
-        tasks.push(Task {
-            name: "walk_history",
-            shape: ProbeShape { size, history, encoder, classes: 2 },
-            train: (train.frames.clone(), &train.walk),
-            test: (test.frames.clone(), &test.walk),
-        });
-        tasks.push(Task {
-            name: "vehicle_history",
-            shape: ProbeShape { size, history, encoder, classes: 2 },
-            train: (train.frames.clone(), &train.vehicle_soon),
-            test: (test.frames.clone(), &test.vehicle_soon),
-        });
+        let shape = ProbeShape { size, history, encoder, classes: 2 };
+        let all = (&train.frames[..], &test.frames[..]);
+        tasks.push(task("walk_history", shape, all, walk));
+        tasks.push(task("vehicle_history", shape, all, vehicle));
     }
     let mut reports: Vec<(&str, ClassifierReport)> = Vec::new();
     for task in &tasks {
@@ -216,13 +211,7 @@ fn main() -> Result<()> {
         };
         let t0 = Instant::now();
         let progress = EpochProgress::new(task.name, cli.epochs);
-        let report = train_and_test(
-            Frames { frames: &task.train.0, labels: task.train.1 },
-            Frames { frames: &task.test.0, labels: task.test.1 },
-            task.shape,
-            cfg,
-            |epoch, loss| progress.epoch(epoch, loss),
-        )?;
+        let report = train_and_test(task.train, task.test, task.shape, cfg, |epoch, loss| progress.epoch(epoch, loss))?;
         progress.done();
         eprintln!(
             "{}: held-out accuracy {:.1} % (majority class {:.1} %, balanced {:.1} %; train {:.1} %) in {:.0} s",

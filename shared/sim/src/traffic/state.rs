@@ -280,12 +280,7 @@ impl TrafficState {
     /// within 1.5 m of a zebra?
     pub fn at_kerb(traffic: &Traffic, p: [f32; 2], region: RegionKind) -> bool {
         !matches!(region, RegionKind::Road | RegionKind::Zebra)
-            && traffic.zebras.iter().any(|z| {
-                let b = z.bounds;
-                let dx = (b.min[0] - p[0]).max(p[0] - b.max[0]).max(0.0);
-                let dy = (b.min[1] - p[1]).max(p[1] - b.max[1]).max(0.0);
-                dx.hypot(dy) < 1.5
-            })
+            && traffic.zebras.iter().any(|z| z.bounds.distance(p[0], p[1]) < 1.5)
     }
 
     /// Vehicles now on the lanes.
