@@ -44,6 +44,8 @@ struct Episode {
     /// The seed the environment and the policy's noise were started with.
     seed: u64,
     category: u32,
+    /// The start's position in the signal cycle, when the task set it.
+    cycle: Option<f32>,
     step: u32,
     points: Vec<EpisodePoint>,
     ret: DiscountedReturn,
@@ -251,15 +253,19 @@ impl ActorProcess {
             self.counters.last_task_id = task.task_id;
             let pose = Pose { x: task.x, y: task.y, yaw: task.yaw };
             let seed = self.rng.random();
-            self.envs
-                .reset(e, pose, seed)
-                .with_context(|| format!("the curriculum service proposed an invalid task {pose:?}"))?;
+            let cycle = task.cycle();
+            self.envs.reset_in_cycle(e, pose, seed, cycle).with_context(|| {
+                format!(
+                    "the curriculum service proposed an invalid task {pose:?} (position in the signal cycle {cycle:?})"
+                )
+            })?;
             self.next_episode += 1;
             self.episodes[e] = Some(Episode {
                 id: self.next_episode,
                 task_id: task.task_id,
                 seed,
                 category: task.category,
+                cycle,
                 step: 0,
                 points: vec![EpisodePoint { x: pose.x, y: pose.y, yaw: pose.yaw, reward: 0.0 }],
                 ret: DiscountedReturn::new(self.cfg.dsac.gamma),
@@ -374,6 +380,8 @@ impl ActorProcess {
                 length: ep.step,
                 discounted_return: ep.ret.value() as f32,
                 total_reward: ep.ret.undiscounted() as f32,
+                start_cycle: ep.cycle.unwrap_or(0.0),
+                has_cycle: ep.cycle.is_some() as u32,
                 // The reporter numbers it (seq, low-water mark).
                 ..EpisodeHeader::default()
             };

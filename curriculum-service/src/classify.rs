@@ -2,7 +2,9 @@
 //! every cell of a grid over the region, with the start yaw facing the goal,
 //! classified by the task-value net into easy / frontier / hard / neither with
 //! the bands of the current t_c; μ and σ fitted on a fresh set of candidate
-//! tasks, as the scheduler does; and the curriculum restored from a saved state of
+//! tasks, as the scheduler does (when the signal phase is part of the task, a cell's
+//! value is the mean of the net's over 8 evenly spaced positions in the cycle); and
+//! the curriculum restored from a saved state of
 //! the service process ([`ServiceState`]), so snapshots can be drawn after the fact.
 
 use std::collections::BTreeMap;
@@ -15,9 +17,13 @@ use crate::config::CurriculumConfig;
 use crate::curriculum::Curriculum;
 use crate::error::Result;
 use crate::filter::{Category, Fit, bands};
-use crate::returns::task_features;
+use crate::returns::{TaskFeatures, task_features};
 use crate::sampler::TaskSampler;
 use crate::state_file::ServiceState;
+
+/// Positions in the signal cycle a cell's value is averaged over, when the phase is
+/// part of the task.
+const CYCLE_POINTS: usize = 8;
 
 /// Class of one grid cell.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord)]
@@ -92,8 +98,13 @@ pub fn classify_region(
 ) -> Result<Option<Classification>> {
     let sampler = TaskSampler::new(scene, cfg.enlarged_region, cfg.max_rejections);
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(1);
-    let candidates: Vec<[f32; 3]> = (0..cfg.candidates)
-        .map(|_| sampler.sample(scene, &mut rng).map(|p| task_features(p, scene.goal_center)))
+    let cycles: Vec<Option<f32>> = if curriculum.has_cycle() {
+        (0..CYCLE_POINTS).map(|k| Some(k as f32 / CYCLE_POINTS as f32)).collect()
+    } else {
+        vec![None]
+    };
+    let candidates: Vec<TaskFeatures> = (0..cfg.candidates)
+        .map(|k| sampler.sample(scene, &mut rng).map(|p| task_features(p, scene.goal_center, cycles[k % cycles.len()])))
         .collect::<Result<_>>()?;
     let Some(predictions) = curriculum.predict(&candidates) else {
         return Ok(None);
@@ -113,11 +124,15 @@ pub fn classify_region(
             if sampler.contains(x, y) {
                 let yaw = (scene.goal_center[1] - y).atan2(scene.goal_center[0] - x);
                 points.push([x, y]);
-                features.push(task_features(Pose { x, y, yaw }, scene.goal_center));
+                for &c in &cycles {
+                    features.push(task_features(Pose { x, y, yaw }, scene.goal_center, c));
+                }
             }
         }
     }
-    let values = curriculum.predict(&features).expect("the net exists");
+    let per_cell = curriculum.predict(&features).expect("the net exists");
+    let values: Vec<f32> =
+        per_cell.chunks_exact(cycles.len()).map(|c| c.iter().sum::<f32>() / cycles.len() as f32).collect();
     let cells = points
         .into_iter()
         .zip(values)
@@ -137,9 +152,9 @@ pub fn classify_region(
     Ok(Some(Classification { fit, cells, cell, t_c, acl: curriculum.scheduler().in_acl_phase() }))
 }
 
-/// A curriculum restored from a saved service state.
-pub fn restore(cfg: &CurriculumConfig, scene: Scene, seed: u64, state: &ServiceState) -> Result<Curriculum> {
-    let mut c = Curriculum::new(cfg.clone(), scene, seed)?;
+/// A curriculum restored from a saved service state (`dt`: seconds of a decision step).
+pub fn restore(cfg: &CurriculumConfig, scene: Scene, dt: f32, seed: u64, state: &ServiceState) -> Result<Curriculum> {
+    let mut c = Curriculum::new(cfg.clone(), scene, dt, seed)?;
     c.restore(&state.curriculum)?;
     Ok(c)
 }

@@ -1,4 +1,4 @@
 //! Curriculum settings: defined once in `pednav-config` (the launcher's check and
 //! this library read the same struct and the same validation), re-exported here.
 
-pub use pednav_config::{CurriculumConfig, TaskNetConfig, Variant};
+pub use pednav_config::{CurriculumConfig, SignalPhase, TaskNetConfig, Variant};

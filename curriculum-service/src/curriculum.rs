@@ -4,7 +4,9 @@
 //!
 //! Data per variant:
 //! - NavACL⁺: the augmented tasks of every step, `(φ(s_t), G_t)` for t < T, with
-//!   G_t bootstrapped by f^r(φ(s_T)) when the episode was truncated at T_max.
+//!   G_t bootstrapped by f^r(φ(s_T)) when the episode was truncated at T_max. With
+//!   the signal phase in the task, φ(s_t)'s position in the cycle is the start's
+//!   advanced by t decision steps (dt / cycle length each).
 //! - NavACL: the initial task only, `(φ(s_0), 1 if the goal was reached else 0)`.
 //! - Fixed start: nothing (no net is kept).
 //!
@@ -13,11 +15,11 @@
 
 use pednav_sim::{Pose, Scene};
 
-use crate::config::{CurriculumConfig, Variant};
+use crate::config::{CurriculumConfig, SignalPhase, Variant};
 use crate::error::{CurriculumError, Result};
 use crate::filter::Category;
 use crate::net::{NetState, Target, TaskValueNet};
-use crate::returns::{discounted_returns, task_features};
+use crate::returns::{TaskFeatures, cycle_after, discounted_returns, task_features};
 use crate::scheduler::{Proposal, ReturnPredictor, SchedulerState, TaskScheduler};
 
 /// What the actor reports at the end of an episode.
@@ -33,6 +35,9 @@ pub struct EpisodeOutcome {
     pub truncated: bool,
     /// The episode reached the goal.
     pub success: bool,
+    /// The start's position in the signal cycle, [0, 1), when it is part of the task
+    /// (the proposal's, as the actor started it).
+    pub start_cycle: Option<f32>,
 }
 
 /// What [`Curriculum::report`] did with an episode.
@@ -54,7 +59,7 @@ pub struct CurriculumState {
     /// The task-value net, if the variant has one.
     pub net: Option<NetState>,
     /// Training data collected since the last round.
-    pub collected: Vec<([f32; 3], f32)>,
+    pub collected: Vec<(TaskFeatures, f32)>,
     /// Episodes reported.
     pub episodes: u64,
 }
@@ -65,7 +70,10 @@ pub struct Curriculum {
     scene_goal: [f32; 2],
     scheduler: TaskScheduler,
     net: Option<TaskValueNet>,
-    collected: Vec<([f32; 3], f32)>,
+    /// The cycle's share one decision step takes (dt / cycle length), when the signal
+    /// phase is part of the task.
+    cycle_step: Option<f32>,
+    collected: Vec<(TaskFeatures, f32)>,
     episodes: u64,
 }
 
@@ -73,29 +81,38 @@ pub struct Curriculum {
 struct Unused;
 
 impl ReturnPredictor for Unused {
-    fn predict(&mut self, _: &[[f32; 3]]) -> Vec<f32> {
+    fn predict(&mut self, _: &[TaskFeatures]) -> Vec<f32> {
         unreachable!("the fixed-start curriculum scores no candidates")
     }
 }
 
 impl Curriculum {
     /// A curriculum for `scene`; `seed` drives task sampling, the net's
-    /// initialisation and its minibatch order.
-    pub fn new(cfg: CurriculumConfig, scene: Scene, seed: u64) -> Result<Curriculum> {
+    /// initialisation and its minibatch order; `dt` is the seconds of a decision step
+    /// (`sim.dt`: how far an episode's steps move through the signal cycle).
+    pub fn new(cfg: CurriculumConfig, scene: Scene, dt: f32, seed: u64) -> Result<Curriculum> {
         cfg.validate()?;
+        cfg.validate_for_traffic(scene.traffic_fixtures)?;
+        let cycle_step = match (cfg.signal_phase, &scene.traffic) {
+            (SignalPhase::Task, Some(t)) => Some((dt as f64 / t.plan.cycle_s) as f32),
+            _ => None,
+        };
         let target = match cfg.variant {
             Variant::NavAcl => Some(Target::Success),
             Variant::NavAclPlusSlope | Variant::NavAclPlusHard => Some(Target::Return),
             Variant::FixedStart => None,
         };
         let net = target
-            .map(|t| TaskValueNet::new(cfg.net.clone(), t, pednav_config::rng::task_net_seed(seed)))
+            .map(|t| {
+                TaskValueNet::new(cfg.net.clone(), t, cycle_step.is_some(), pednav_config::rng::task_net_seed(seed))
+            })
             .transpose()
             .map_err(|e| CurriculumError::Net(e.to_string()))?;
         Ok(Curriculum {
             scene_goal: scene.goal_center,
             scheduler: TaskScheduler::new(cfg.clone(), scene, seed)?,
             net,
+            cycle_step,
             collected: Vec::new(),
             episodes: 0,
             cfg,
@@ -149,13 +166,18 @@ impl Curriculum {
         }
     }
 
+    /// Whether the signal phase is part of the task (its net sees the cycle).
+    pub fn has_cycle(&self) -> bool {
+        self.cycle_step.is_some()
+    }
+
     /// The scheduler (gate, t_c).
     pub fn scheduler(&self) -> &TaskScheduler {
         &self.scheduler
     }
 
     /// The task-value net's predictions for tasks (e.g. for plots); `None` for fixed start.
-    pub fn predict(&mut self, features: &[[f32; 3]]) -> Option<Vec<f32>> {
+    pub fn predict(&mut self, features: &[TaskFeatures]) -> Option<Vec<f32>> {
         self.net.as_mut().map(|n| n.predict(features))
     }
 
@@ -171,7 +193,24 @@ impl Curriculum {
         }
         let gamma = self.cfg.gamma;
         let plain = discounted_returns(&ep.rewards, gamma, None).first().copied().unwrap_or(0.0);
-        let features: Vec<[f32; 3]> = ep.poses.iter().map(|&p| task_features(p, self.scene_goal)).collect();
+        let start_cycle = match (self.cycle_step, ep.start_cycle) {
+            (None, _) => None,
+            (Some(_), Some(c)) if (0.0..1.0).contains(&c) => Some(c),
+            (Some(_), c) => {
+                return Err(CurriculumError::Report(format!(
+                    "the signal phase is part of the task, but the episode reports its start's position in the cycle as {c:?} (needs one in [0, 1))"
+                )));
+            }
+        };
+        let features: Vec<TaskFeatures> = ep
+            .poses
+            .iter()
+            .enumerate()
+            .map(|(t, &p)| {
+                let cycle = start_cycle.zip(self.cycle_step).map(|(c, step)| cycle_after(c, t, step));
+                task_features(p, self.scene_goal, cycle)
+            })
+            .collect();
         match (self.cfg.variant, self.net.as_mut()) {
             (Variant::NavAclPlusSlope | Variant::NavAclPlusHard, Some(net)) => {
                 let bootstrap = ep.truncated.then(|| net.predict(&features[features.len() - 1..])[0]);
@@ -202,12 +241,17 @@ mod tests {
 
     fn episode(category: Category, rewards: Vec<f32>, truncated: bool) -> EpisodeOutcome {
         let poses = (0..=rewards.len()).map(|k| Pose { x: 10.0 + k as f32, y: 7.0, yaw: 0.0 }).collect();
-        EpisodeOutcome { category, poses, rewards, truncated, success: !truncated }
+        EpisodeOutcome { category, poses, rewards, truncated, success: !truncated, start_cycle: None }
     }
 
     fn curriculum(variant: Variant) -> Curriculum {
         let cfg = CurriculumConfig { variant, candidates: 16, ..CurriculumConfig::default() };
-        Curriculum::new(cfg, Scene::reference(), 3).unwrap()
+        Curriculum::new(cfg, Scene::reference(), 0.25, 3).unwrap()
+    }
+
+    fn with_traffic(cfg: CurriculumConfig) -> Result<Curriculum> {
+        let scene = Scene::reference().with_traffic(pednav_sim::TrafficLevel::Medium).unwrap();
+        Curriculum::new(cfg, scene, 0.25, 3)
     }
 
     #[test]
@@ -219,11 +263,11 @@ mod tests {
         assert!((g[0] - 14.250025).abs() < 1e-4 && (g[1] - 14.7475).abs() < 1e-4 && g[2] == 15.25, "{g:?}");
         assert!((s.discounted_return - 14.250025).abs() < 1e-4);
         // Features of s_0 = (10, 7): the goal centre (20, 7) is 10 m along x.
-        assert_eq!(c.collected[0].0, [10.0, 0.0, 0.0]);
+        assert_eq!(c.collected[0].0, [10.0, 0.0, 0.0].into());
 
         // Truncated: the bootstrap is f^r(φ(s_T)), the net's own prediction at the last pose.
         let ep = episode(Category::First, vec![-1.0, -1.0], true);
-        let last = task_features(ep.poses[2], c.scene_goal);
+        let last = task_features(ep.poses[2], c.scene_goal, None);
         let f_t = c.predict(&[last]).unwrap()[0];
         c.report(&ep).unwrap();
         let g1 = c.collected[4].1;
@@ -271,5 +315,35 @@ mod tests {
         let mut ep = episode(Category::First, vec![-1.0; 3], true);
         ep.poses.pop();
         assert!(matches!(c.report(&ep), Err(CurriculumError::Report(_))));
+    }
+
+    /// With the signal phase in the task, every proposal carries a position in the
+    /// cycle, and an episode's states are collected with the start's advanced by
+    /// dt / cycle per step (the reference plan's cycle is 76 s).
+    #[test]
+    fn the_signal_phase_in_the_task_travels_with_the_proposal_and_each_step() {
+        let cfg = CurriculumConfig { candidates: 16, signal_phase: SignalPhase::Task, ..CurriculumConfig::default() };
+        let mut c = with_traffic(cfg.clone()).unwrap();
+        let p = c.propose().unwrap();
+        assert_eq!(p.category, Category::First);
+        assert!(p.cycle.is_some_and(|x| (0.0..1.0).contains(&x)), "{p:?}");
+        let mut ep = episode(Category::First, vec![-1.0; 3], false);
+        ep.start_cycle = Some(0.995);
+        c.report(&ep).unwrap();
+        let cycles: Vec<f32> = c.collected.iter().map(|x| x.0.cycle.unwrap()).collect();
+        let step = 0.25 / 76.0;
+        let want = [0.995, 0.995 + step, (0.995 + 2.0 * step) - 1.0];
+        for (a, b) in cycles.iter().zip(want) {
+            assert!((a - b).abs() < 1e-5, "{cycles:?} vs {want:?}");
+        }
+        ep.start_cycle = None;
+        let err = c.report(&ep).unwrap_err().to_string();
+        assert!(err.contains("position in the cycle"), "{err}");
+        // Drawn (the default): no cycle anywhere, even with traffic.
+        let mut d = with_traffic(CurriculumConfig { candidates: 16, ..CurriculumConfig::default() }).unwrap();
+        assert_eq!(d.propose().unwrap().cycle, None);
+        // The phase in the task without traffic is refused, naming the field.
+        let err = Curriculum::new(cfg, Scene::reference(), 0.25, 3).err().unwrap().to_string();
+        assert!(err.contains("signal_phase"), "{err}");
     }
 }

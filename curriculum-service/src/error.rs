@@ -27,7 +27,7 @@ pub enum CurriculumError {
         /// The value.
         value: f32,
         /// The task's features.
-        features: [f32; 3],
+        features: crate::returns::TaskFeatures,
     },
     /// A save of the service's state failed at one of its steps; both generations on
     /// disk are as they were (the service keeps serving and saves again later).

@@ -37,7 +37,7 @@ pub use error::{CurriculumError, Result};
 pub use filter::{Bands, Category, Fit};
 pub use gate::PassFirstTask;
 pub use net::{NetState, Target, TaskNetConfig, TaskValueNet};
-pub use returns::{discounted_returns, task_features};
+pub use returns::{TaskFeatures, discounted_returns, task_features};
 pub use sampler::TaskSampler;
 pub use scheduler::{Proposal, ReturnPredictor, SchedulerState, TaskScheduler};
 pub use state_file::ServiceState;

@@ -11,23 +11,26 @@
 //!
 //! Invariants: t_c only grows, and only with episodes proposed in the ACL phase;
 //! a proposed pose is the first task, the fixed start, or a pose of the curriculum
-//! region; all randomness comes from the scheduler's seeded RNG.
+//! region; a proposal carries a position in the signal cycle, in [0, 1), exactly
+//! when the signal phase is part of the task (`signal_phase = "task"`: the first
+//! task and the fixed start draw theirs uniformly too); all randomness comes from
+//! the scheduler's seeded RNG.
 
 use pednav_sim::{Pose, Scene};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
-use crate::config::{CurriculumConfig, Variant};
+use crate::config::{CurriculumConfig, SignalPhase, Variant};
 use crate::error::{CurriculumError, Result};
 use crate::filter::{Bands, Category, Fit, bands, category_probabilities};
 use crate::gate::PassFirstTask;
-use crate::returns::task_features;
+use crate::returns::{TaskFeatures, task_features};
 use crate::sampler::TaskSampler;
 
 /// Predicts the discounted return (NavACL⁺) or success probability (NavACL) of tasks.
 pub trait ReturnPredictor {
-    /// One prediction per task-feature vector φ = (dx, dy, yaw).
-    fn predict(&mut self, features: &[[f32; 3]]) -> Vec<f32>;
+    /// One prediction per task-feature vector φ = (dx, dy, yaw[, cycle]).
+    fn predict(&mut self, features: &[TaskFeatures]) -> Vec<f32>;
 }
 
 /// A proposed task.
@@ -35,12 +38,21 @@ pub trait ReturnPredictor {
 pub struct Proposal {
     /// Start pose.
     pub pose: Pose,
+    /// Position in the signal cycle at the start, [0, 1), when it is part of the task.
+    pub cycle: Option<f32>,
     /// Category it was drawn from (the one actually used, after any fallback).
     pub category: Category,
     /// The predictor's value for it, when candidates were scored.
     pub predicted: Option<f32>,
     /// The fit of that round, when candidates were scored.
     pub fit: Option<Fit>,
+}
+
+impl Proposal {
+    /// A proposal made without scoring candidates (first task, fixed start).
+    fn plain(pose: Pose, cycle: Option<f32>, category: Category) -> Proposal {
+        Proposal { pose, cycle, category, predicted: None, fit: None }
+    }
 }
 
 /// Saved state of a [`TaskScheduler`].
@@ -62,8 +74,8 @@ pub struct TaskScheduler {
     gate: PassFirstTask,
     t_c: u64,
     rng: ChaCha8Rng,
-    candidates: Vec<Pose>,
-    features: Vec<[f32; 3]>,
+    candidates: Vec<(Pose, Option<f32>)>,
+    features: Vec<TaskFeatures>,
 }
 
 impl TaskScheduler {
@@ -71,6 +83,7 @@ impl TaskScheduler {
     pub fn new(cfg: CurriculumConfig, scene: Scene, seed: u64) -> Result<TaskScheduler> {
         cfg.validate()?;
         cfg.validate_for_scene(&scene.origin, !scene.enlarged_curriculum_region.is_empty())?;
+        cfg.validate_for_traffic(scene.traffic_fixtures)?;
         Ok(TaskScheduler {
             sampler: TaskSampler::new(&scene, cfg.enlarged_region, cfg.max_rejections),
             gate: PassFirstTask::new(cfg.pass_window, cfg.pass_threshold),
@@ -117,11 +130,14 @@ impl TaskScheduler {
 
     /// Propose the next task.
     pub fn propose(&mut self, predictor: &mut dyn ReturnPredictor) -> Result<Proposal> {
-        let plain = |pose, category| Proposal { pose, category, predicted: None, fit: None };
         match self.cfg.variant {
-            Variant::FixedStart => return Ok(plain(self.scene.fixed_start(), Category::Fixed)),
+            Variant::FixedStart => {
+                let cycle = self.draw_cycle();
+                return Ok(Proposal::plain(self.scene.fixed_start(), cycle, Category::Fixed));
+            }
             Variant::NavAclPlusSlope | Variant::NavAclPlusHard if !self.gate.passed() => {
-                return Ok(plain(self.scene.first_task(), Category::First));
+                let cycle = self.draw_cycle();
+                return Ok(Proposal::plain(self.scene.first_task(), cycle, Category::First));
             }
             _ => {}
         }
@@ -129,8 +145,9 @@ impl TaskScheduler {
         self.features.clear();
         for _ in 0..self.cfg.candidates {
             let pose = self.sampler.sample(&self.scene, &mut self.rng)?;
-            self.candidates.push(pose);
-            self.features.push(task_features(pose, self.scene.goal_center));
+            let cycle = self.draw_cycle();
+            self.candidates.push((pose, cycle));
+            self.features.push(task_features(pose, self.scene.goal_center, cycle));
         }
         let predictions = predictor.predict(&self.features);
         assert_eq!(predictions.len(), self.features.len(), "one prediction per candidate");
@@ -141,7 +158,17 @@ impl TaskScheduler {
         let bands = bands(&self.cfg, fit, self.t_c);
         let category = self.draw_category();
         let (index, category) = self.pick(&bands, category, &predictions);
-        Ok(Proposal { pose: self.candidates[index], category, predicted: Some(predictions[index]), fit: Some(fit) })
+        let (pose, cycle) = self.candidates[index];
+        Ok(Proposal { pose, cycle, category, predicted: Some(predictions[index]), fit: Some(fit) })
+    }
+
+    /// A uniform position in the signal cycle when it is part of the task (drawn after
+    /// the pose, from the same RNG); `None` when the episode's seed draws it.
+    fn draw_cycle(&mut self) -> Option<f32> {
+        match self.cfg.signal_phase {
+            SignalPhase::Drawn => None,
+            SignalPhase::Task => Some(self.rng.random_range(0.0..1.0)),
+        }
     }
 
     fn draw_category(&mut self) -> Category {

@@ -1,6 +1,7 @@
 //! The task scheduler against the reference scene, with synthetic predictors.
 
 use pednav_curriculum::filter::{Fit, category_probabilities};
+use pednav_curriculum::returns::TaskFeatures;
 use pednav_curriculum::{Category, CurriculumConfig, ReturnPredictor, TaskScheduler, Variant};
 use pednav_sim::Scene;
 use proptest::prelude::*;
@@ -9,8 +10,8 @@ use proptest::prelude::*;
 struct DistancePredictor;
 
 impl ReturnPredictor for DistancePredictor {
-    fn predict(&mut self, features: &[[f32; 3]]) -> Vec<f32> {
-        features.iter().map(|f| 5.0 - f[0].hypot(f[1])).collect()
+    fn predict(&mut self, features: &[TaskFeatures]) -> Vec<f32> {
+        features.iter().map(|f| 5.0 - f.pose[0].hypot(f.pose[1])).collect()
     }
 }
 
@@ -137,7 +138,7 @@ fn the_same_seed_proposes_the_same_tasks() {
 fn a_non_finite_prediction_is_an_error_naming_the_task() {
     struct Broken;
     impl ReturnPredictor for Broken {
-        fn predict(&mut self, features: &[[f32; 3]]) -> Vec<f32> {
+        fn predict(&mut self, features: &[TaskFeatures]) -> Vec<f32> {
             features.iter().map(|_| f32::NAN).collect()
         }
     }

@@ -12,7 +12,7 @@ use pednav_curriculum::{Curriculum, CurriculumConfig, ServiceState};
 use pednav_sim::Scene;
 
 fn state(next_task_id: u64) -> ServiceState {
-    let c = Curriculum::new(CurriculumConfig::default(), Scene::reference(), 3).unwrap();
+    let c = Curriculum::new(CurriculumConfig::default(), Scene::reference(), 0.25, 3).unwrap();
     ServiceState {
         curriculum: c.state().unwrap(),
         next_task_id,

@@ -50,7 +50,7 @@ impl SyntheticAgent {
             (vec![start; self.t_max + 1], vec![-0.75; self.t_max])
         };
         self.skill += self.growth;
-        EpisodeOutcome { category, poses, rewards, truncated: !success, success }
+        EpisodeOutcome { category, poses, rewards, truncated: !success, success, start_cycle: None }
     }
 }
 
@@ -68,7 +68,7 @@ fn navacl_plus_moves_from_the_first_task_to_outward_moving_easy_tasks() {
         pass_threshold: -25.0,
         ..CurriculumConfig::default()
     };
-    let mut cur = Curriculum::new(cfg, scene.clone(), 11).unwrap();
+    let mut cur = Curriculum::new(cfg, scene.clone(), 0.25, 11).unwrap();
     let mut agent = SyntheticAgent { skill: 3.0, growth: 0.012, t_max: 120, rng: ChaCha8Rng::seed_from_u64(12) };
     let dist = |p: Pose| (goal[0] - p.x).hypot(goal[1] - p.y);
     let mut gate_at = None;

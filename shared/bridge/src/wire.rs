@@ -28,8 +28,9 @@ use crate::error::{BridgeError, Result};
 
 /// The wire version this build reads and writes (3: episode reports carry their
 /// actor's low-water mark and are acknowledged by the curriculum service as taken and
-/// as saved, [`Kind::ReportAcks`]).
-pub const VERSION: u8 = 3;
+/// as saved, [`Kind::ReportAcks`]; 4: tasks and episode reports carry the start's
+/// position in the signal cycle).
+pub const VERSION: u8 = 4;
 
 /// What a message is: its first byte.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -298,7 +299,7 @@ pub fn decode_step(bytes: &[u8]) -> Result<(StepHeader, &[u8])> {
 /// lowest report number of this actor incarnation it still holds), the rest of its
 /// header, then its points.
 pub fn encode_episode(h: &EpisodeHeader, points: &[EpisodePoint]) -> Vec<u8> {
-    let mut e = Enc::new(Kind::Episode, 72 + 16 * points.len());
+    let mut e = Enc::new(Kind::Episode, 80 + 16 * points.len());
     e.u64(h.low_water);
     e.u32(h.actor);
     e.u32(h.env);
@@ -311,6 +312,8 @@ pub fn encode_episode(h: &EpisodeHeader, points: &[EpisodePoint]) -> Vec<u8> {
     e.u32(h.length);
     e.f32(h.discounted_return);
     e.f32(h.total_reward);
+    e.f32(h.start_cycle);
+    e.u32(h.has_cycle);
     e.u64(points.len() as u64);
     for p in points {
         e.f32s(&[p.x, p.y, p.yaw, p.reward]);
@@ -335,6 +338,8 @@ pub fn decode_episode(bytes: &[u8]) -> Result<(EpisodeHeader, Vec<EpisodePoint>)
         length: d.u32("length")?,
         discounted_return: d.f32("discounted_return")?,
         total_reward: d.f32("total_reward")?,
+        start_cycle: d.f32("start_cycle")?,
+        has_cycle: d.u32("has_cycle")?,
         low_water,
     };
     let n = d.count(16, "points")?;
@@ -459,10 +464,12 @@ pub fn decode_task_request(bytes: &[u8]) -> Result<TaskRequest> {
 
 /// The curriculum service's answer to a task request.
 pub fn encode_task_response(r: &TaskResponse) -> Vec<u8> {
-    let mut e = Enc::new(Kind::TaskResponse, 24);
+    let mut e = Enc::new(Kind::TaskResponse, 32);
     e.f32s(&[r.x, r.y, r.yaw]);
     e.u32(r.category);
     e.u64(r.task_id);
+    e.f32(r.cycle);
+    e.u32(r.has_cycle);
     e.0
 }
 
@@ -475,6 +482,8 @@ pub fn decode_task_response(bytes: &[u8]) -> Result<TaskResponse> {
         yaw: d.f32("yaw")?,
         category: d.u32("category")?,
         task_id: d.u64("task_id")?,
+        cycle: d.f32("cycle")?,
+        has_cycle: d.u32("has_cycle")?,
     };
     d.finish()?;
     Ok(r)
@@ -592,18 +601,21 @@ mod tests {
             rets in (any_f32(), any_f32()),
             points in proptest::collection::vec(proptest::array::uniform4(any_f32()), 0..40),
             low_water in any::<u64>(),
+            cycle in (any_f32(), any::<u32>()),
         ) {
             let (actor, env, incarnation, seq, task_id, category) = ints;
             let h = EpisodeHeader {
                 actor, env, incarnation, seq, task_id, category,
                 success: flags.0, truncated: flags.1, length: flags.2,
                 discounted_return: rets.0, total_reward: rets.1, low_water,
+                start_cycle: cycle.0, has_cycle: cycle.1,
             };
             let pts: Vec<EpisodePoint> =
                 points.iter().map(|&[x, y, yaw, reward]| EpisodePoint { x, y, yaw, reward }).collect();
             let bytes = encode_episode(&h, &pts);
             let (back, back_pts) = decode_episode(&bytes).unwrap();
             prop_assert_eq!(back.low_water, low_water);
+            prop_assert_eq!((back.start_cycle.to_bits(), back.has_cycle), (cycle.0.to_bits(), cycle.1));
             prop_assert_eq!(
                 (back.actor, back.env, back.incarnation, back.seq, back.task_id, back.category),
                 (actor, env, incarnation, seq, task_id, category)
@@ -673,13 +685,20 @@ mod tests {
         }
 
         #[test]
-        fn tasks_round_trip(actor in any::<u32>(), env in any::<u32>(), pose in proptest::array::uniform3(any_f32()), category in any::<u32>(), task_id in any::<u64>()) {
+        fn tasks_round_trip(
+            actor in any::<u32>(),
+            env in any::<u32>(),
+            pose in proptest::array::uniform3(any_f32()),
+            category in any::<u32>(),
+            task_id in any::<u64>(),
+            cycle in (any_f32(), any::<u32>()),
+        ) {
             let req = TaskRequest { actor, env };
             prop_assert_eq!(decode_task_request(&encode_task_request(&req)).unwrap(), req);
-            let resp = TaskResponse { x: pose[0], y: pose[1], yaw: pose[2], category, task_id };
+            let resp = TaskResponse { x: pose[0], y: pose[1], yaw: pose[2], category, task_id, cycle: cycle.0, has_cycle: cycle.1 };
             let back = decode_task_response(&encode_task_response(&resp)).unwrap();
-            prop_assert_eq!(bits(&[back.x, back.y, back.yaw]), bits(&pose));
-            prop_assert_eq!((back.category, back.task_id), (category, task_id));
+            prop_assert_eq!(bits(&[back.x, back.y, back.yaw, back.cycle]), bits(&[pose[0], pose[1], pose[2], cycle.0]));
+            prop_assert_eq!((back.category, back.task_id, back.has_cycle), (category, task_id, cycle.1));
         }
 
         /// Any bytes at all: an error or a message, never a panic; a cut or extended

@@ -25,37 +25,54 @@ pub enum Variant {
     FixedStart,
 }
 
+/// How a task treats the signal cycle when the scene has traffic.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum SignalPhase {
+    /// The start's position in the signal cycle is drawn uniformly per episode from
+    /// the episode's seed, as in evaluation: the curriculum proposes poses only, and
+    /// its task-value net predicts the mean over the cycle.
+    #[default]
+    Drawn,
+    /// The position in the cycle is part of the task: each candidate draws one
+    /// uniformly beside its pose, the task-value net sees it (as sin and cos of the
+    /// cycle's angle, advanced with every decision step along an episode), and the
+    /// curriculum can propose "at the kerb as WALK begins" as an easy task and "just
+    /// after WALK ended" as a hard one. Needs `sim.traffic` on.
+    Task,
+}
+
 /// Settings of the curriculum.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct CurriculumConfig {
     /// The curriculum variant.
     pub variant: Variant,
-    /// Discount factor of the returns f^r predicts. Table IV: 0.99.
+    /// Discount factor of the returns f^r predicts. Table IV: 0.99. Range: (0, 1).
     pub gamma: f32,
-    /// Easy threshold β_e: easy when f > μ + β_e·σ. Table IV: 1.
+    /// Easy threshold β_e: easy when f > μ + β_e·σ. Table IV: 1. Range: [0, 100].
     pub beta_easy: f32,
-    /// Frontier upper bound β_f^h: frontier when f < μ + β_f^h·σ. Table IV: 0.1.
+    /// Frontier upper bound β_f^h: frontier when f < μ + β_f^h·σ. Table IV: 0.1. Range: [0, 100].
     pub beta_frontier_high: f32,
-    /// Frontier lower bound β_f^l (initial value for Slope): f > μ − β_f^l·σ. Table IV: 1.
+    /// Frontier lower bound β_f^l (initial value for Slope): f > μ − β_f^l·σ. Table IV: 1. Range: [0, 100].
     pub beta_frontier_low: f32,
-    /// Slope S of the Slope variant. Table IV: 5.
+    /// Slope S of the Slope variant. Table IV: 5. Range: [0, 100].
     pub slope: f32,
-    /// t_thre: ACL-phase decision steps over which Slope widens and Hard ramps up. Table IV: 1.5e6.
+    /// t_thre: ACL-phase decision steps over which Slope widens and Hard ramps up. Table IV: 1.5e6. Range: (0, 1e10].
     pub t_thre: f64,
     /// Hard threshold β_h: hard when f < μ − β_h·σ. The paper does not give it;
     /// default 1, the mirror image of the easy threshold β_e, so "hard" is as far
-    /// below the mean as "easy" is above it.
+    /// below the mean as "easy" is above it. Range: [0, 100].
     pub beta_hard: f32,
-    /// Largest probability of the hard category (Hard variant). Paper: 20 %.
+    /// Largest probability of the hard category (Hard variant). Paper: 20 %. Range: [0, 1].
     pub hard_max_prob: f32,
     /// Probability of the random category for NavACL and NavACL⁺ (Slope). The
     /// paper defers to NavACL and gives no number; default 0.2, the end-state share
     /// of the Hard variant's third category, with the rest split equally between easy
     /// and frontier as the paper describes for Hard — so the variants differ only in
-    /// what the third category is and when it appears.
+    /// what the third category is and when it appears. Range: [0, 1].
     pub random_prob: f32,
-    /// PassFirstTask window: number of most recent first-task returns averaged. Paper: 30.
+    /// PassFirstTask window: number of most recent first-task returns averaged. Paper: 30. Range: 1 ..= 1000000.
     pub pass_window: usize,
     /// PassFirstTask threshold on that mean discounted return. Paper: −25; default 0,
     /// calibrated for the reference scene's first task (6 m from the goal, facing it):
@@ -63,12 +80,12 @@ pub struct CurriculumConfig {
     /// 30-episode means reached −9.5 (state) and −12 (pixels) when fast episodes report
     /// first, above the paper's −25; a policy that learned the task makes ≈ +5 to +8
     /// (the oracle +8.5, a figure no kept file backs). Runs trained before the calibration
-    /// ran at −25 and say so in their `config.toml`.
+    /// ran at −25 and say so in their `config.toml`. Range: [−10000, 10000].
     pub pass_threshold: f32,
-    /// Candidate tasks drawn to fit μ and σ (adaptive filtering). Table IV: 4096.
+    /// Candidate tasks drawn to fit μ and σ (adaptive filtering). Table IV: 4096. Range: 2 ..= 1048576.
     pub candidates: usize,
     /// Δ_ep: train the task-value net every this many reported episodes, then clear
-    /// the collected set (Algorithm 1). Table IV: 10.
+    /// the collected set (Algorithm 1). Table IV: 10. Range: 1 ..= 1000000.
     pub train_every_episodes: usize,
     /// The task-value network (f^r or f^s).
     pub net: TaskNetConfig,
@@ -81,8 +98,12 @@ pub struct CurriculumConfig {
     /// Rejection-sampling limit per candidate: draws from the proposal region's
     /// bounding box before giving up (the reference curriculum region covers ≈ 10 %
     /// of its box, the enlarged one ≈ 23 %; 1000 makes a failure astronomically
-    /// unlikely there and bounded elsewhere).
+    /// unlikely there and bounded elsewhere). Range: 1 ..= 100000000.
     pub max_rejections: usize,
+    /// With traffic: whether the start's position in the signal cycle is drawn per
+    /// episode (`"drawn"`, the default) or proposed with the pose as part of the task
+    /// (`"task"`). Ignored without traffic; `"task"` with traffic off is refused.
+    pub signal_phase: SignalPhase,
 }
 
 impl Default for CurriculumConfig {
@@ -105,6 +126,7 @@ impl Default for CurriculumConfig {
             train_every_episodes: 10,
             net: TaskNetConfig::default(),
             max_rejections: 1000,
+            signal_phase: SignalPhase::Drawn,
         }
     }
 }
@@ -115,7 +137,7 @@ impl CurriculumConfig {
         let bad =
             |field: &'static str, value: String, message: &str| Err(ConfigError::curriculum(field, value, message));
         if !(self.gamma > 0.0 && self.gamma < 1.0) {
-            return bad("gamma", self.gamma.to_string(), "must lie in (0, 1)");
+            return bad("gamma", self.gamma.to_string(), "must be in (0, 1)");
         }
         for (field, v) in [
             ("beta_easy", self.beta_easy),
@@ -124,20 +146,20 @@ impl CurriculumConfig {
             ("beta_hard", self.beta_hard),
             ("slope", self.slope),
         ] {
-            if !(v.is_finite() && v >= 0.0) {
-                return bad(field, v.to_string(), "must be finite and ≥ 0");
+            if !(0.0..=100.0).contains(&v) {
+                return bad(field, v.to_string(), "must be in [0, 100] (multiples of σ)");
             }
         }
-        if !(self.t_thre.is_finite() && self.t_thre > 0.0) {
-            return bad("t_thre", self.t_thre.to_string(), "must be positive");
+        if !(self.t_thre > 0.0 && self.t_thre <= 1e10) {
+            return bad("t_thre", self.t_thre.to_string(), "must be in (0, 1e10] decision steps");
         }
         for (field, p) in [("hard_max_prob", self.hard_max_prob), ("random_prob", self.random_prob)] {
             if !(0.0..=1.0).contains(&p) {
-                return bad(field, p.to_string(), "must lie in [0, 1]");
+                return bad(field, p.to_string(), "must be in [0, 1]");
             }
         }
-        if !self.pass_threshold.is_finite() {
-            return bad("pass_threshold", self.pass_threshold.to_string(), "must be a finite return");
+        if !(-1e4..=1e4).contains(&self.pass_threshold) {
+            return bad("pass_threshold", self.pass_threshold.to_string(), "must be in [-10000, 10000] (a return)");
         }
         // Upper bounds far above any sensible setting: the service allocates these up front.
         for (field, value, min, max) in [
@@ -153,8 +175,8 @@ impl CurriculumConfig {
                 return bad(field, value.to_string(), &format!("must be in {min}..={max}{why}"));
             }
         }
-        if !(self.net.lr > 0.0 && self.net.lr.is_finite()) {
-            return bad("net.lr", self.net.lr.to_string(), "must be a finite positive learning rate");
+        if !(self.net.lr > 0.0 && self.net.lr <= 1.0) {
+            return bad("net.lr", self.net.lr.to_string(), "must be in (0, 1] (a learning rate)");
         }
         if self.net.hidden.len() > 16 {
             return bad(
@@ -188,6 +210,18 @@ impl CurriculumConfig {
         }
         Ok(())
     }
+
+    /// Check against the run's traffic: a signal phase in the task needs traffic on.
+    pub fn validate_for_traffic(&self, traffic_on: bool) -> Result<()> {
+        if self.signal_phase == SignalPhase::Task && !traffic_on {
+            return Err(ConfigError::curriculum(
+                "signal_phase",
+                "task",
+                "a signal phase in the task needs traffic: set sim.traffic to light, medium or heavy, or signal_phase to \"drawn\"",
+            ));
+        }
+        Ok(())
+    }
 }
 
 /// Settings of the task-value network.
@@ -197,12 +231,12 @@ pub struct TaskNetConfig {
     /// Hidden layer widths. The paper gives none; two layers of 64 fit a smooth
     /// function of three features without overfitting the few thousand samples of a round.
     pub hidden: Vec<usize>,
-    /// Learning rate. Table IV: 1e-3.
+    /// Learning rate. Table IV: 1e-3. Range: (0, 1].
     pub lr: f64,
-    /// Minibatch size. Table IV: 64.
+    /// Minibatch size. Table IV: 64. Range: 1 ..= 65536.
     pub batch: usize,
     /// Passes over the collected set per training round. The paper does not say;
-    /// 5 lets a round's data move the net noticeably while Δ_ep keeps rounds frequent.
+    /// 5 lets a round's data move the net noticeably while Δ_ep keeps rounds frequent. Range: 1 ..= 10000.
     pub epochs: usize,
 }
 

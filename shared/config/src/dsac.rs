@@ -8,36 +8,37 @@ use crate::error::{ConfigError, Result};
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct DsacConfig {
-    /// Discount factor γ.
+    /// Discount factor γ. Range: [0, 1).
     pub gamma: f64,
-    /// Target entropy for the automatic temperature (−3 = −|A|).
+    /// Target entropy for the automatic temperature (−3 = −|A|). Range: [−100, 100].
     pub target_entropy: f64,
-    /// Initial temperature α₀.
+    /// Initial temperature α₀. Range: (0, 100].
     pub initial_alpha: f64,
-    /// Learning rate of the temperature (optimised as log α).
+    /// Learning rate of the temperature (optimised as log α). Range: (0, 1].
     pub lr_alpha: f64,
-    /// Learning rate of the policy network.
+    /// Learning rate of the policy network. Range: (0, 1].
     pub lr_policy: f64,
-    /// Learning rate of the quantile network.
+    /// Learning rate of the quantile network. Range: (0, 1].
     pub lr_quantile: f64,
-    /// Learning rate of the fraction-proposal network (FQF's value 2.5e-9).
+    /// Learning rate of the fraction-proposal network (FQF's value 2.5e-9). Range: (0, 1].
     pub lr_fraction: f64,
-    /// Polyak coefficient τ of the target quantile network.
+    /// Polyak coefficient τ of the target quantile network. Range: (0, 1].
     pub soft_update: f64,
-    /// κ of the quantile Huber loss.
+    /// κ of the quantile Huber loss. Range: (0, 100].
     pub huber_kappa: f64,
-    /// Weight of the fraction-proposal entropy bonus (FQF's default 0).
+    /// Weight of the fraction-proposal entropy bonus (FQF's default 0). Range: [0, 100].
     pub fraction_entropy: f64,
     /// Clip each network's global gradient norm to this value (`null`/absent: no clipping,
-    /// as in the paper).
+    /// as in the paper). Range: (0, 1e6].
     pub max_grad_norm: Option<f64>,
-    /// Samples per update.
+    /// Samples per update. Range: 2 ..= 65536.
     pub batch_size: usize,
-    /// Env steps stored before the first update.
+    /// Env steps stored before the first update. Range: `batch_size` ..=
+    /// `replay.nonterminal_capacity`.
     pub warmup: u64,
-    /// Env steps per update (the replay ratio).
+    /// Env steps per update (the replay ratio). Range: 1 ..= 1000000.
     pub train_interval: u64,
-    /// Updates the learner may fall behind before actors are held back.
+    /// Updates the learner may fall behind before actors are held back. Range: 1 ..= 1000000.
     pub rate_slack: u64,
     /// Twin critics, as in DSAC (Duan et al.): two quantile nets (each with a Polyak
     /// target) trained on the same TD target, which takes per sample the target
@@ -50,7 +51,7 @@ pub struct DsacConfig {
     /// DrQ's random-shift augmentation of pixel batches (Kostrikov et al., 2021): each
     /// sampled transition's N_h + 1 frames are shifted together by up to this many
     /// pixels in x and y, edges replicated (DrQ: 4 at 84×84). 0: off, as the paper.
-    /// Pixel observations only.
+    /// Pixel observations only. Range: 0 ..= `nets.image_size` / 4 (0 for state observations).
     pub random_shift: usize,
     /// Weight λ of the state-prediction auxiliary loss (0: off, as the paper). When
     /// positive, a linear head on the critic encoder's features regresses the
@@ -59,7 +60,7 @@ pub struct DsacConfig {
     /// observation), and λ·E[‖ŝ − s‖²] is added to the critic loss so its gradient
     /// shapes the encoder — the "game features" auxiliary of Lample & Chaplot (2017).
     /// The state is privileged: it is a training target only and never reaches the
-    /// policy's input, which stays pixels.
+    /// policy's input, which stays pixels. Range: [0, 100].
     pub state_aux_weight: f64,
     /// n of the n-step TD target (1: the paper's one-step target). With n > 1 the
     /// critic regresses on Σ_{k<n} γᵏ r_{t+k} + γⁿ (Z(s_{t+n}, a′) − α log π(a′|s_{t+n})),
@@ -68,7 +69,7 @@ pub struct DsacConfig {
     /// target that mixes in up to n − 1 steps of the older, behaviour policy's actions
     /// (no off-policy correction, as in those methods). Each sampled transition
     /// carries N_h + n frames; the terminal pool keeps the n transitions before every
-    /// goal (so |B_T| grows n-fold, as Algorithm 2 counts done transitions).
+    /// goal (so |B_T| grows n-fold, as Algorithm 2 counts done transitions). Range: 1 ..= 64.
     pub n_step: usize,
     /// Weight λ_c of the temporal contrastive auxiliary loss (0: off, as the paper). A
     /// self-supervised loss that needs nothing privileged: ATC's augmented temporal
@@ -79,7 +80,7 @@ pub struct DsacConfig {
     /// InfoNCE loss over the batch (each anchor's positive against the batch's other
     /// positives, temperature 0.1) is added as λ_c·ℓ_c to the critic loss, so its
     /// gradient teaches the encoder to tell states apart — what the pixel critic's
-    /// features were measured to lack. The map steps with its own optimiser.
+    /// features were measured to lack. The map steps with its own optimiser. Range: [0, 100].
     pub contrast_weight: f64,
 }
 
@@ -114,6 +115,8 @@ impl DsacConfig {
     /// The largest `n_step` accepted (each sample carries N_h + n frames; beyond a few
     /// dozen steps γⁿ no longer bootstraps much anyway).
     pub const MAX_N_STEP: usize = 64;
+    /// The largest `batch_size` accepted (a pixel batch holds N_h + n frames per sample).
+    pub const MAX_BATCH_SIZE: usize = 1 << 16;
 
     /// Whether the learner builds a second critic and its target (twin critics). With
     /// [`DsacConfig::builds_state_head`], the one rule for which networks a learner
@@ -135,84 +138,44 @@ impl DsacConfig {
         self.contrast_weight > 0.0
     }
 
-    /// Reject impossible values, naming the field.
-    // `!(x > 0.0)` on purpose: it also rejects NaN.
-    #[allow(clippy::neg_cmp_op_on_partial_ord)]
+    /// Reject values outside each field's documented range, naming the field, the value
+    /// and the range. Every float comparison is false for NaN, so NaN is refused too.
     pub fn validate(&self) -> Result<()> {
-        if !(0.0..1.0).contains(&self.gamma) {
-            return Err(ConfigError::learner("gamma", self.gamma, "must be in [0, 1)"));
-        }
-        if !self.target_entropy.is_finite() {
-            return Err(ConfigError::learner("target_entropy", self.target_entropy, "must be finite (−|A| = −3)"));
-        }
-        if !(self.initial_alpha > 0.0 && self.initial_alpha.is_finite()) {
-            return Err(ConfigError::learner("initial_alpha", self.initial_alpha, "must be finite and positive"));
-        }
-        for (field, v) in [
-            ("lr_alpha", self.lr_alpha),
-            ("lr_policy", self.lr_policy),
-            ("lr_quantile", self.lr_quantile),
-            ("lr_fraction", self.lr_fraction),
+        let lr = |v: f64| v > 0.0 && v <= 1.0;
+        let weight = |v: f64| (0.0..=100.0).contains(&v);
+        let positive = |v: f64, max: f64| v > 0.0 && v <= max;
+        for (field, v, ok, range) in [
+            ("gamma", self.gamma, (0.0..1.0).contains(&self.gamma), "[0, 1)"),
+            ("target_entropy", self.target_entropy, (-100.0..=100.0).contains(&self.target_entropy), "[-100, 100]"),
+            ("initial_alpha", self.initial_alpha, positive(self.initial_alpha, 100.0), "(0, 100]"),
+            ("lr_alpha", self.lr_alpha, lr(self.lr_alpha), "(0, 1] (a learning rate)"),
+            ("lr_policy", self.lr_policy, lr(self.lr_policy), "(0, 1] (a learning rate)"),
+            ("lr_quantile", self.lr_quantile, lr(self.lr_quantile), "(0, 1] (a learning rate)"),
+            ("lr_fraction", self.lr_fraction, lr(self.lr_fraction), "(0, 1] (a learning rate)"),
+            ("soft_update", self.soft_update, positive(self.soft_update, 1.0), "(0, 1]"),
+            ("huber_kappa", self.huber_kappa, positive(self.huber_kappa, 100.0), "(0, 100]"),
+            ("fraction_entropy", self.fraction_entropy, weight(self.fraction_entropy), "[0, 100] (0: off)"),
+            ("state_aux_weight", self.state_aux_weight, weight(self.state_aux_weight), "[0, 100] (0: off)"),
+            ("contrast_weight", self.contrast_weight, weight(self.contrast_weight), "[0, 100] (0: off)"),
         ] {
-            if !(v >= 0.0 && v.is_finite()) {
-                return Err(ConfigError::learner(field, v, "must be a finite non-negative learning rate"));
+            if !ok {
+                return Err(ConfigError::learner(field, v, format!("must be in {range}")));
             }
         }
-        if !(self.soft_update > 0.0 && self.soft_update <= 1.0) {
-            return Err(ConfigError::learner("soft_update", self.soft_update, "must be in (0, 1]"));
-        }
-        if !(self.huber_kappa > 0.0 && self.huber_kappa.is_finite()) {
-            return Err(ConfigError::learner("huber_kappa", self.huber_kappa, "must be finite and positive"));
-        }
-        if !(self.fraction_entropy >= 0.0 && self.fraction_entropy.is_finite()) {
-            return Err(ConfigError::learner(
-                "fraction_entropy",
-                self.fraction_entropy,
-                "must be finite and ≥ 0 (0: off)",
-            ));
-        }
         if let Some(m) = self.max_grad_norm
-            && !(m > 0.0 && m.is_finite())
+            && !positive(m, 1e6)
         {
-            return Err(ConfigError::learner(
-                "max_grad_norm",
-                m,
-                "must be finite and positive (omit it to disable clipping)",
-            ));
+            return Err(ConfigError::learner("max_grad_norm", m, "must be in (0, 1e6] (omit it to disable clipping)"));
         }
-        if !(self.state_aux_weight >= 0.0 && self.state_aux_weight.is_finite()) {
-            return Err(ConfigError::learner(
-                "state_aux_weight",
-                self.state_aux_weight,
-                "must be finite and ≥ 0 (0: off)",
-            ));
-        }
-        if !(self.contrast_weight >= 0.0 && self.contrast_weight.is_finite()) {
-            return Err(ConfigError::learner(
-                "contrast_weight",
-                self.contrast_weight,
-                "must be finite and ≥ 0 (0: off)",
-            ));
-        }
-        if !(1..=Self::MAX_N_STEP).contains(&self.n_step) {
-            return Err(ConfigError::learner(
-                "n_step",
-                self.n_step,
-                format!("must be in 1..={} (1: the paper's one-step target)", Self::MAX_N_STEP),
-            ));
-        }
-        if self.batch_size < 2 {
-            return Err(ConfigError::learner("batch_size", self.batch_size, "must be at least 2"));
-        }
-        if !(1..=1_000_000).contains(&self.train_interval) {
-            return Err(ConfigError::learner(
-                "train_interval",
-                self.train_interval,
-                "must be in 1..=1000000 env steps",
-            ));
-        }
-        if self.rate_slack == 0 {
-            return Err(ConfigError::learner("rate_slack", self.rate_slack, "must be at least 1 update"));
+        for (field, value, min, max, what) in [
+            ("n_step", self.n_step as u64, 1, Self::MAX_N_STEP as u64, " (1: the paper's one-step target)"),
+            ("batch_size", self.batch_size as u64, 2, Self::MAX_BATCH_SIZE as u64, " samples"),
+            ("train_interval", self.train_interval, 1, 1_000_000, " env steps"),
+            ("rate_slack", self.rate_slack, 1, 1_000_000, " updates"),
+        ] {
+            if !(min..=max).contains(&value) {
+                return Err(ConfigError::learner(field, value, format!("must be in {min}..={max}{what}")));
+            }
         }
         if self.warmup < self.batch_size as u64 {
             return Err(ConfigError::learner(
@@ -222,5 +185,62 @@ impl DsacConfig {
             ));
         }
         Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Each out-of-range value alone is refused naming its field; each boundary value
+    /// alone is accepted.
+    #[test]
+    fn values_outside_the_documented_ranges_are_refused_naming_the_field() {
+        let refused: [(&str, fn(&mut DsacConfig)); 22] = [
+            ("gamma", |c| c.gamma = 1.0),
+            ("gamma", |c| c.gamma = f64::NAN),
+            ("target_entropy", |c| c.target_entropy = -1e15),
+            ("initial_alpha", |c| c.initial_alpha = 0.0),
+            ("lr_alpha", |c| c.lr_alpha = f64::NAN),
+            ("lr_policy", |c| c.lr_policy = 0.0),
+            ("lr_policy", |c| c.lr_policy = 1e15),
+            ("lr_quantile", |c| c.lr_quantile = 0.0),
+            ("lr_quantile", |c| c.lr_quantile = 1e15),
+            ("lr_fraction", |c| c.lr_fraction = 0.0),
+            ("lr_fraction", |c| c.lr_fraction = 1e15),
+            ("soft_update", |c| c.soft_update = f64::NAN),
+            ("huber_kappa", |c| c.huber_kappa = 1e15),
+            ("fraction_entropy", |c| c.fraction_entropy = -1.0),
+            ("state_aux_weight", |c| c.state_aux_weight = 1e15),
+            ("contrast_weight", |c| c.contrast_weight = 1e15),
+            ("contrast_weight", |c| c.contrast_weight = f64::NAN),
+            ("max_grad_norm", |c| c.max_grad_norm = Some(0.0)),
+            ("batch_size", |c| c.batch_size = 1 << 20),
+            ("train_interval", |c| c.train_interval = 0),
+            ("rate_slack", |c| c.rate_slack = u64::MAX),
+            ("n_step", |c| c.n_step = 65),
+        ];
+        for (field, set) in refused {
+            let mut cfg = DsacConfig::default();
+            set(&mut cfg);
+            let e = cfg.validate().expect_err(field);
+            assert_eq!(e.field, field, "{e}");
+            assert!(e.message.contains("must be in"), "{e}");
+        }
+        let accepted: [fn(&mut DsacConfig); 8] = [
+            |c| c.gamma = 0.0,
+            |c| c.lr_policy = 1.0,
+            |c| c.lr_fraction = 2.5e-9,
+            |c| c.contrast_weight = 100.0,
+            |c| c.target_entropy = -100.0,
+            |c| c.max_grad_norm = Some(1e6),
+            |c| c.rate_slack = 1_000_000,
+            |c| c.n_step = DsacConfig::MAX_N_STEP,
+        ];
+        for set in accepted {
+            let mut cfg = DsacConfig::default();
+            set(&mut cfg);
+            cfg.validate().unwrap();
+        }
     }
 }

@@ -22,7 +22,7 @@ pub mod replay;
 pub mod rng;
 
 pub use category::Category;
-pub use curriculum::{CurriculumConfig, TaskNetConfig, Variant};
+pub use curriculum::{CurriculumConfig, SignalPhase, TaskNetConfig, Variant};
 pub use dsac::DsacConfig;
 pub use error::{ConfigError, Result};
 pub use replay::{FrameKind, ReplayConfig, ReplayFootprint};

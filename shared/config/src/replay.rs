@@ -10,6 +10,8 @@ use crate::error::{ConfigError, Result};
 pub struct ReplayConfig {
     /// |B_N| capacity: steps in the non-terminal ring (Table IV: 1.5e6). Each step
     /// holds its frame plus 25 B ([`ReplayFootprint::ring_step`]: 7,081 B at 84×84).
+    /// Range: ≥ max(N_h + n + 1, `dsac.batch_size`, `dsac.warmup`); the upper bound is
+    /// the machine's memory (see `terminal_capacity`).
     pub nonterminal_capacity: usize,
     /// |B_T| capacity: terminal transitions kept (Table IV: 1.5e6). Each entry holds
     /// its own copy of N_h + n frames (n = `dsac.n_step`, 1 in the paper) ([`ReplayFootprint::terminal_entry`]: 120,208 B
@@ -18,6 +20,7 @@ pub struct ReplayConfig {
     /// `runtime.max_env_steps`) ring steps, min(capacity, `runtime.max_env_steps` / 2)
     /// terminal entries, the capacities when the run is unbounded — and refuses a
     /// config that cannot fit the machine (`pednav-run check` prints the estimate).
+    /// Range: ≥ 1, up to what fits the machine's memory.
     pub terminal_capacity: usize,
 }
 
@@ -47,7 +50,7 @@ impl ReplayConfig {
             ));
         }
         if self.terminal_capacity == 0 {
-            return Err(ConfigError::learner("terminal_capacity", self.terminal_capacity, "must be positive"));
+            return Err(ConfigError::learner("terminal_capacity", self.terminal_capacity, "must be at least 1"));
         }
         Ok(())
     }
@@ -129,6 +132,32 @@ impl ReplayFootprint {
         ReplayFootprint {
             ring_step: frame + Self::RING_STEP_EXTRA + target,
             terminal_entry: span * frame + (span - 1) * Self::HISTORY_ENTRY + target,
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Capacities below their lower bounds are refused naming the field; the bounds
+    /// themselves are accepted (the upper bound is the machine's memory, checked by
+    /// the launcher).
+    #[test]
+    fn capacities_below_their_ranges_are_refused_naming_the_field() {
+        let pixels = FrameKind::Pixels { size: 42 };
+        let cases = [
+            (ReplayConfig { nonterminal_capacity: 8 + 3, ..Default::default() }, 3, Some("nonterminal_capacity")),
+            (ReplayConfig { nonterminal_capacity: 8 + 3 + 1, ..Default::default() }, 3, None),
+            (ReplayConfig { terminal_capacity: 0, ..Default::default() }, 1, Some("terminal_capacity")),
+            (ReplayConfig { terminal_capacity: 1, ..Default::default() }, 1, None),
+        ];
+        for (cfg, n_step, refused) in cases {
+            match (cfg.validate(pixels, 8, n_step), refused) {
+                (Ok(()), None) => {}
+                (Err(e), Some(field)) => assert_eq!(e.field, field, "{e}"),
+                (got, want) => panic!("{cfg:?}: got {got:?}, want {want:?}"),
+            }
         }
     }
 }

@@ -301,7 +301,7 @@ pub fn trajectories(scene: &Scene, results: &[EpisodeResult], title: &str, path:
 pub fn curriculum_snapshots(
     scene: &Scene,
     cfg: &CurriculumConfig,
-    seed: u64,
+    (dt, seed): (f32, u64),
     snapshots: &[std::path::PathBuf],
     max: usize,
     path: &Path,
@@ -316,7 +316,7 @@ pub fn curriculum_snapshots(
     let mut tiles = Vec::new();
     for p in &chosen {
         let state = ServiceState::load(p).map_err(|e| ExperimentError::file(p, e))?;
-        let mut c = pednav_curriculum::classify::restore(cfg, scene.clone(), seed, &state)
+        let mut c = pednav_curriculum::classify::restore(cfg, scene.clone(), dt, seed, &state)
             .map_err(|e| ExperimentError::file(p, e))?;
         let Some(class) = classify_region(&mut c, scene, cfg, 0.5).map_err(|e| ExperimentError::file(p, e))? else {
             return Err(ExperimentError::Plot("the fixed-start variant has no classification".into()));

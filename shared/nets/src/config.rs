@@ -29,20 +29,23 @@ pub struct NetsConfig {
     /// Observation encoder: `tcn` (paper), `frame_stack` (baseline) or `mlp` (state observations).
     pub encoder: EncoderKind,
     /// Side of the square greyscale frames in pixels (84 in the paper; 42 in the CPU preset).
+    /// Range: 21 ..= 1024 (`tcn`, `frame_stack`); 1 ..= 1024 (`mlp`, unused).
     pub image_size: usize,
     /// N_h: frames per observation (16 in the paper, 8 in the CPU preset, 4 for Non-ACL-FR-4).
+    /// Range: 2 ..= 64 (`tcn`); 1 ..= 64 (`frame_stack`); exactly 1 with state observations.
     pub history: usize,
-    /// Length of the state-debug observation (used by the `mlp` encoder only).
+    /// Length of the state-debug observation (used by the `mlp` encoder only). Range: 1 ..= 4096.
     pub state_dim: usize,
-    /// Width of the fully connected layer after the encoder (256 in the paper).
+    /// Width of the fully connected layer after the encoder (256 in the paper). Range: 1 ..= 8192.
     pub hidden: usize,
-    /// Output width of each history branch (actions, rewards): 8 in the paper.
+    /// Output width of each history branch (actions, rewards): 8 in the paper. Range: 1 ..= 1024.
     pub history_features: usize,
-    /// N: quantile fractions proposed per state-action (Table IV: 32).
+    /// N: quantile fractions proposed per state-action (Table IV: 32). Range: 2 ..= 1024.
     pub quantiles: usize,
     /// Intervals of the NDQFN fixed fraction grid on which monotone quantile values are
     /// produced (then linearly interpolated at the proposed fractions). Not in the
     /// paper; 32 matches N so every proposed fraction sees a distinct grid interval on average.
+    /// Range: 1 ..= 1024.
     pub quantile_grid: usize,
     /// `false` (paper): policy, fraction-proposal and quantile networks each have their
     /// own encoder. `true`: one encoder, trained by the critic loss; the policy and
@@ -114,6 +117,7 @@ impl NetsConfig {
         // value is a typo, and `pednav-run check` builds the networks to estimate memory.
         for (field, value, min, max) in [
             ("image_size", self.image_size, 1, 1024),
+            ("history", self.history, 1, 64),
             ("state_dim", self.state_dim, 1, 4096),
             ("hidden", self.hidden, 1, 8192),
             ("history_features", self.history_features, 1, 1024),
@@ -163,5 +167,34 @@ mod tests {
         assert_eq!(ConvPrecision::Auto.resolved(), expected);
         assert_eq!(ConvPrecision::F32.resolved(), ConvPrecision::F32);
         assert_eq!(ConvPrecision::Bf16.resolved(), ConvPrecision::Bf16);
+    }
+
+    /// Each out-of-range size alone is refused naming its field; each boundary alone is
+    /// accepted.
+    #[test]
+    fn sizes_outside_the_documented_ranges_are_refused_naming_the_field() {
+        let mlp = || NetsConfig { encoder: EncoderKind::Mlp, history: 1, ..NetsConfig::default() };
+        let cases = [
+            (NetsConfig { image_size: 20, ..NetsConfig::default() }, Some("image_size")),
+            (NetsConfig { image_size: 1025, ..NetsConfig::default() }, Some("image_size")),
+            (NetsConfig { history: 1, ..NetsConfig::default() }, Some("history")),
+            (NetsConfig { history: 65, ..NetsConfig::default() }, Some("history")),
+            (NetsConfig { history: 1 << 40, ..mlp() }, Some("history")),
+            (NetsConfig { state_dim: 0, ..mlp() }, Some("state_dim")),
+            (NetsConfig { hidden: 0, ..NetsConfig::default() }, Some("hidden")),
+            (NetsConfig { hidden: 1 << 20, ..NetsConfig::default() }, Some("hidden")),
+            (NetsConfig { quantiles: 1, ..NetsConfig::default() }, Some("quantiles")),
+            (NetsConfig { quantile_grid: 0, ..NetsConfig::default() }, Some("quantile_grid")),
+            (NetsConfig { history_features: 0, ..NetsConfig::default() }, Some("history_features")),
+            (NetsConfig { image_size: 21, history: 64, ..NetsConfig::default() }, None),
+            (NetsConfig { hidden: 8192, quantiles: 1024, ..mlp() }, None),
+        ];
+        for (cfg, refused) in cases {
+            match (cfg.validate(), refused) {
+                (Ok(()), None) => {}
+                (Err(e), Some(field)) => assert!(e.to_string().contains(&format!("`{field}`")), "{e}"),
+                (got, want) => panic!("{cfg:?}: got {got:?}, want {want:?}"),
+            }
+        }
     }
 }

@@ -33,37 +33,48 @@ pub enum ActorPolicy {
 /// are typos, and `std::time::Duration` cannot hold every finite `f64`.
 pub const MAX_SECS: f64 = 1e7;
 
+/// Largest `runtime.max_updates` and `runtime.max_env_steps` (0 is no bound): larger
+/// ones are typos (10¹² env steps is decades of any machine's run).
+pub const MAX_COUNT: u64 = 1_000_000_000_000;
+
 /// Settings of the distributed runtime (processes, IPC, cadence of outputs).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct RuntimeConfig {
     /// Simulator instances per actor process (stepped and rendered as one batch).
+    /// Range: 1 ..= 4096.
     pub envs_per_actor: usize,
     /// How actors choose actions.
     pub policy: ActorPolicy,
-    /// Publish the policy weights every this many updates (K).
+    /// Publish the policy weights every this many updates (K). Range: 1 ..= 1000000.
     pub weights_every: u64,
-    /// Write a learner checkpoint every this many updates (and on stop).
+    /// Write a learner checkpoint every this many updates (and on stop). Range: 1 ..= 1e9.
     pub checkpoint_every_updates: u64,
     /// Also write a learner checkpoint when this many seconds passed since the last.
+    /// Range: (0, 1e7].
     pub checkpoint_every_secs: f64,
     /// Save the curriculum state every this many episode reports (and on stop); at
     /// most 1,024: each actor holds its reports until a save holds them, 1,024 at most.
+    /// Range: 1 ..= 1024.
     pub curriculum_save_every_episodes: u64,
     /// Write a metrics row (CSV + TensorBoard) every this many seconds, and a last one at stop.
+    /// Range: (0, 1e7].
     pub metrics_every_secs: f64,
     /// Step records the learner's subscriber buffers before actors wait. Each actor
     /// also holds twice this many records until the learner acknowledges them, to send
     /// them again to a learner that restarts ([`RuntimeConfig::resend_window`]).
+    /// Range: 16 ..= 1048576.
     pub step_buffer: usize,
     /// Seconds a lossless publisher (steps, episode reports) keeps retrying a full
-    /// receiver before it gives up and the process exits with an error.
+    /// receiver before it gives up and the process exits with an error. Range: (0, 1e7].
     pub give_up_secs: f64,
     /// Seconds an actor waits for the curriculum service to answer a task request.
+    /// Range: (0, 1e7].
     pub task_timeout_secs: f64,
-    /// Stop the run after this many learner updates (0: run until stopped).
+    /// Stop the run after this many learner updates (0: run until stopped). Range: 0 ..= 1e12.
     pub max_updates: u64,
     /// Stop the run after this many env steps received by the learner (0: until stopped).
+    /// Range: 0 ..= 1e12.
     pub max_env_steps: u64,
     /// Where the learner trains: "cpu", "cuda" or "cuda:N". CUDA needs the binaries
     /// built by `deploy/build_cuda.sh`; `--device` on `pednav-run launch` overrides it.
@@ -73,7 +84,8 @@ pub struct RuntimeConfig {
     pub actor_device: DeviceSpec,
     /// A learner or curriculum service that sent no heartbeat for this many seconds
     /// (after its first; they send one every `metrics_every_secs`) is treated as dead:
-    /// the launcher kills it and restarts it from its checkpoint or state.
+    /// the launcher kills it and restarts it from its checkpoint or state. Range:
+    /// [3 × `metrics_every_secs`, 1e7].
     pub hang_secs: f64,
 }
 
@@ -113,6 +125,7 @@ impl Default for RuntimeConfig {
 #[serde(deny_unknown_fields, default)]
 pub struct RunConfig {
     /// Seed of the run: every process derives its own seed from it (actor k: seed ⊕ k).
+    /// Range: any u64.
     pub seed: u64,
     /// Scene file (TOML), or a scene compiled in: `built-in:corner` (the reference,
     /// also what an absent value means) or `built-in:corner_plain` (the reference
@@ -200,14 +213,15 @@ impl RunConfig {
         self.dsac.validate().map_err(|e| section("dsac", e.to_string()))?;
         self.curriculum.validate().map_err(|e| section("curriculum", e.to_string()))?;
         let scene = self.scene()?;
-        self.curriculum.validate_for_scene(&scene.origin, !scene.enlarged_curriculum_region.is_empty()).map_err(
-            |e| RuntimeError::Config {
+        self.curriculum
+            .validate_for_scene(&scene.origin, !scene.enlarged_curriculum_region.is_empty())
+            .and_then(|()| self.curriculum.validate_for_traffic(self.sim.traffic.is_on()))
+            .map_err(|e| RuntimeError::Config {
                 file: file.to_string(),
                 field: format!("curriculum.{}", e.field),
                 value: e.value,
                 message: e.message,
-            },
-        )?;
+            })?;
         // Length of the simulator's state vector (22, or 50 with traffic).
         let dim = state_obs_dim(&self.sim);
         match self.sim.obs_mode {
@@ -276,11 +290,15 @@ impl RunConfig {
         if r.envs_per_actor == 0 || r.envs_per_actor > 4096 {
             return bad("runtime.envs_per_actor", r.envs_per_actor.to_string(), "must be 1 … 4096");
         }
-        if r.weights_every == 0 {
-            return bad("runtime.weights_every", "0".into(), "must be at least 1");
-        }
-        if r.checkpoint_every_updates == 0 {
-            return bad("runtime.checkpoint_every_updates", "0".into(), "must be at least 1");
+        for (field, v, min, max) in [
+            ("runtime.weights_every", r.weights_every, 1, 1_000_000),
+            ("runtime.checkpoint_every_updates", r.checkpoint_every_updates, 1, 1_000_000_000),
+            ("runtime.max_updates", r.max_updates, 0, MAX_COUNT),
+            ("runtime.max_env_steps", r.max_env_steps, 0, MAX_COUNT),
+        ] {
+            if !(min..=max).contains(&v) {
+                return bad(field, v.to_string(), &format!("must be in {min}..={max}"));
+            }
         }
         if r.curriculum_save_every_episodes == 0 || r.curriculum_save_every_episodes > HELD_REPORTS as u64 {
             return bad(
@@ -534,6 +552,15 @@ mod tests {
             ("dsac.n_step=0", "n_step"),
             ("dsac.n_step=1000", "n_step"),
             ("dsac.contrast_weight=nan", "contrast_weight"),
+            // The absurd learner settings, once "valid".
+            ("dsac.lr_quantile=0.0", "lr_quantile"),
+            ("dsac.lr_policy=1e15", "lr_policy"),
+            ("dsac.lr_fraction=0.0", "lr_fraction"),
+            ("dsac.contrast_weight=1e15", "contrast_weight"),
+            ("runtime.weights_every=10000000", "runtime.weights_every"),
+            ("runtime.max_env_steps=1000000000000000", "runtime.max_env_steps"),
+            ("curriculum.net.lr=1e15", "net.lr"),
+            ("sim.t_max=4000000000", "t_max"),
             ("nets.hidden=1000000", "hidden"),
             ("nets.quantiles=100000", "quantiles"),
             ("nets.quantile_grid=100000", "quantile_grid"),
@@ -570,6 +597,15 @@ mod tests {
         cfg.curriculum.enlarged_region = false;
         cfg.validate("x").unwrap();
         let _ = std::fs::remove_dir_all(&dir);
+    }
+
+    #[test]
+    fn a_signal_phase_in_the_task_needs_traffic() {
+        let mut cfg: RunConfig = toml::from_str("[curriculum]\nsignal_phase = \"task\"\n").unwrap();
+        let e = cfg.validate("run.toml").unwrap_err().to_string();
+        assert!(e.contains("curriculum.signal_phase") && e.contains("sim.traffic"), "{e}");
+        cfg.sim.traffic = pednav_sim::TrafficLevel::Medium;
+        cfg.validate("run.toml").unwrap();
     }
 
     #[test]

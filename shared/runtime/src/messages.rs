@@ -232,6 +232,19 @@ pub struct EpisodeHeader {
     /// it still holds (every one below was acknowledged, or given up for room), so the
     /// receiver never waits for a report that will not come ([`crate::reports`]).
     pub low_water: u64,
+    /// The start's position in the signal cycle, [0, 1), as the task gave it (read
+    /// only when `has_cycle` is 1).
+    pub start_cycle: f32,
+    /// 1 when the task set the start's position in the signal cycle
+    /// (`curriculum.signal_phase = "task"`), 0 when the episode's seed drew it.
+    pub has_cycle: u32,
+}
+
+impl EpisodeHeader {
+    /// The start's position in the signal cycle, when the task set it.
+    pub fn start_cycle(&self) -> Option<f32> {
+        (self.has_cycle != 0).then_some(self.start_cycle)
+    }
 }
 
 /// One point of an episode: the pose reached and the reward of the step that led there.
@@ -272,6 +285,23 @@ pub struct TaskResponse {
     pub category: u32,
     /// Task id, unique within the run.
     pub task_id: u64,
+    /// The start's position in the signal cycle, [0, 1) (read only when `has_cycle` is 1).
+    pub cycle: f32,
+    /// 1 when the curriculum sets the start's position in the signal cycle
+    /// (`curriculum.signal_phase = "task"`), 0 when the episode's seed draws it.
+    pub has_cycle: u32,
+}
+
+impl TaskResponse {
+    /// The start's position in the signal cycle, when the task sets it.
+    pub fn cycle(&self) -> Option<f32> {
+        (self.has_cycle != 0).then_some(self.cycle)
+    }
+
+    /// Set (or clear) the start's position in the signal cycle.
+    pub fn with_cycle(self, cycle: Option<f32>) -> TaskResponse {
+        TaskResponse { cycle: cycle.unwrap_or(0.0), has_cycle: cycle.is_some() as u32, ..self }
+    }
 }
 
 /// Header of a weights broadcast; the payload is every parameter of the acting

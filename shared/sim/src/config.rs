@@ -8,6 +8,10 @@ use crate::error::{Result, SimError};
 /// are never visible and are not drawn; [`SimConfig::validate`] keeps the eye below it.
 pub const MAX_EYE_HEIGHT: f32 = 3.0;
 
+/// Longest episode [`SimConfig::validate`] accepts, in decision steps (≈ 69 h at the
+/// paper's 0.25 s; the paper trains with 8000).
+pub const MAX_T_MAX: u32 = 1_000_000;
+
 /// What an environment returns as its observation.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize, clap::ValueEnum)]
 #[serde(rename_all = "snake_case")]
@@ -53,28 +57,32 @@ impl TrafficLevel {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct SimConfig {
-    /// Seconds per decision step. Paper: 0.25.
+    /// Seconds per decision step. Paper: 0.25. Range: (0, 5].
     pub dt: f32,
     /// Episode length limit in decision steps (truncation, bootstrapped by learners).
-    /// Paper: 8000 in training, 2000 in validation.
+    /// Paper: 8000 in training, 2000 in validation. Range: 1 ..= 1000000.
     pub t_max: u32,
     /// Top walking speed in m/s; action a₀ ∈ [−1, 1] maps linearly to [0, max_speed]. Paper: 2.
+    /// Range: (0, 20].
     pub max_speed: f32,
     /// Top yaw rate in degrees/s; a₁ ∈ [−1, 1] maps to [−max_yaw_rate, max_yaw_rate]. Paper: 80.
+    /// Range: [0, 720].
     pub max_yaw_rate_deg: f32,
     /// Head-yaw range in degrees: a₂ ∈ [−1, 1] sets the head's yaw offset relative
     /// to the body to a₂ · max_head_yaw (absolute offset, not a rate). Default 60: the
-    /// paper gives no range (docs/design.md §9).
+    /// paper gives no range (docs/design.md §9). Range: [0, 90].
     pub max_head_yaw_deg: f32,
-    /// Capsule radius of the pedestrian in metres.
+    /// Capsule radius of the pedestrian in metres. Range: (0.05, 1).
     pub agent_radius: f32,
-    /// Capsule height of the pedestrian in metres.
+    /// Capsule height of the pedestrian in metres. Range: (2 × `agent_radius`, 3].
     pub agent_height: f32,
-    /// Camera height above the ground in metres.
+    /// Camera height above the ground in metres. Range: (0.1, 3).
     pub eye_height: f32,
     /// Horizontal (and, with square images, vertical) field of view in degrees. Paper: 135.
+    /// Range: (10, 170).
     pub fov_deg: f32,
     /// Side of the square greyscale observation in pixels (84 in the paper; 42 for reduced presets).
+    /// Range: 8 ..= 1024 (at least 21 for the convolutional encoders).
     pub image_size: u32,
     /// Observation mode.
     pub obs_mode: ObsMode,
@@ -85,13 +93,13 @@ pub struct SimConfig {
     /// `"heavy"` — signals, vehicles and other pedestrians from the scene's
     /// `[traffic]` section.
     pub traffic: TrafficLevel,
-    /// Overrides the level's vehicle arrivals per lane, vehicles/h (0–2400).
+    /// Overrides the level's vehicle arrivals per lane, vehicles/h. Range: [0, 2400].
     #[serde(skip_serializing_if = "Option::is_none")]
     pub traffic_flow: Option<f32>,
-    /// Overrides the level's number of other pedestrians (0–64).
+    /// Overrides the level's number of other pedestrians. Range: 0 ..= 64.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub traffic_walkers: Option<u32>,
-    /// Overrides the scene's share of drivers who do not yield at zebras (0–1).
+    /// Overrides the scene's share of drivers who do not yield at zebras. Range: [0, 1].
     #[serde(skip_serializing_if = "Option::is_none")]
     pub traffic_non_yielding: Option<f32>,
 }
@@ -130,7 +138,7 @@ impl SimConfig {
             }
         }
         check(self.dt > 0.0 && self.dt <= 5.0, "dt", self.dt, "must lie in (0, 5] seconds")?;
-        check(self.t_max >= 1, "t_max", self.t_max, "must be at least 1")?;
+        check((1..=MAX_T_MAX).contains(&self.t_max), "t_max", self.t_max, "must lie in [1, 1000000] steps")?;
         check(self.max_speed > 0.0 && self.max_speed <= 20.0, "max_speed", self.max_speed, "must lie in (0, 20] m/s")?;
         check(
             (0.0..=720.0).contains(&self.max_yaw_rate_deg),
@@ -212,5 +220,45 @@ mod tests {
         }
         let written = toml::to_string(&SimConfig { obs_mode: ObsMode::State, ..SimConfig::default() }).unwrap();
         assert!(written.contains("obs_mode = \"state\""), "{written}");
+    }
+
+    /// Each out-of-range value alone is refused naming its field; each boundary alone
+    /// is accepted.
+    #[test]
+    fn values_outside_the_documented_ranges_are_refused_naming_the_field() {
+        let refused: [(&str, fn(&mut SimConfig)); 12] = [
+            ("dt", |c| c.dt = 0.0),
+            ("dt", |c| c.dt = f32::NAN),
+            ("t_max", |c| c.t_max = 0),
+            ("t_max", |c| c.t_max = MAX_T_MAX + 1),
+            ("max_speed", |c| c.max_speed = 1e15),
+            ("max_yaw_rate_deg", |c| c.max_yaw_rate_deg = f32::NAN),
+            ("max_head_yaw_deg", |c| c.max_head_yaw_deg = 91.0),
+            ("fov_deg", |c| c.fov_deg = f32::NAN),
+            ("image_size", |c| c.image_size = 4096),
+            ("traffic_flow", |c| c.traffic_flow = Some(f32::NAN)),
+            ("traffic_walkers", |c| c.traffic_walkers = Some(65)),
+            ("traffic_non_yielding", |c| c.traffic_non_yielding = Some(1.5)),
+        ];
+        for (field, set) in refused {
+            let mut cfg = SimConfig::default();
+            set(&mut cfg);
+            match cfg.validate() {
+                Err(SimError::Config { field: f, .. }) => assert_eq!(f, field),
+                other => panic!("{field}: {other:?}"),
+            }
+        }
+        let accepted: [fn(&mut SimConfig); 5] = [
+            |c| c.dt = 5.0,
+            |c| c.t_max = MAX_T_MAX,
+            |c| c.max_head_yaw_deg = 90.0,
+            |c| c.traffic_flow = Some(2400.0),
+            |c| c.traffic_walkers = Some(64),
+        ];
+        for set in accepted {
+            let mut cfg = SimConfig::default();
+            set(&mut cfg);
+            cfg.validate().unwrap();
+        }
     }
 }

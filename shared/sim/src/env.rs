@@ -41,7 +41,7 @@ use crate::render::{
 use crate::scene::{Pose, RegionKind};
 use crate::state_obs::{STATE_OBS_MAX, state_obs_dim, state_observation};
 use crate::traffic::{
-    HeadKind, PEDESTRIAN_HEAD, SafetyEvents, TrafficState, VEHICLE_HEAD, VehicleSignal, VehicleStyle,
+    HeadKind, PEDESTRIAN_HEAD, SafetyEvents, TrafficStart, TrafficState, VEHICLE_HEAD, VehicleSignal, VehicleStyle,
 };
 use crate::world::SimWorld;
 
@@ -104,15 +104,30 @@ impl VecEnv {
     }
 
     /// Start a new episode in environment `env` at `task`; `seed` drives the
-    /// episode's randomness (the rendering look when domain randomisation is on).
+    /// episode's randomness (the rendering look when domain randomisation is on, and
+    /// the traffic: arrivals, walkers and the start's position in the signal cycle).
     pub fn reset(&mut self, env: usize, task: Pose, seed: u64) -> Result<()> {
+        self.reset_in_cycle(env, task, seed, None)
+    }
+
+    /// As [`VecEnv::reset`], with the start's position in the signal cycle set by the
+    /// task when `cycle` is given (a fraction of the cycle in [0, 1); the curriculum's
+    /// `signal_phase = "task"`) instead of drawn from `seed`; the rest of the traffic
+    /// (arrivals, walkers) still comes from `seed`. A `cycle` without traffic, or outside
+    /// [0, 1), is an error.
+    pub fn reset_in_cycle(&mut self, env: usize, task: Pose, seed: u64, cycle: Option<f32>) -> Result<()> {
         self.world.scene.check_task(task)?;
+        if let Some(c) = cycle {
+            if self.world.traffic.is_none() || !(0.0..1.0).contains(&c) {
+                return Err(SimError::CyclePosition { cycle: c, traffic: self.world.traffic.is_some() });
+            }
+        }
         self.peds[env].reset(task);
         self.looks[env] = if self.world.config.domain_randomization { Look::randomized(seed) } else { Look::default() };
         if let Some((traffic, settings)) = &self.world.traffic {
             let cfg = &self.world.config;
-            self.traffic[env] =
-                Some(TrafficState::new(traffic, *settings, seed, [task.x, task.y], cfg.agent_radius, cfg.dt));
+            let start = TrafficStart { seed, cycle, agent: [task.x, task.y], agent_radius: cfg.agent_radius };
+            self.traffic[env] = Some(TrafficState::new(traffic, *settings, start, cfg.dt));
         }
         Ok(())
     }

@@ -55,6 +55,18 @@ pub enum SimError {
         /// Why it is rejected.
         message: String,
     },
+    /// A task set the start's position in the signal cycle where there is no traffic,
+    /// or outside [0, 1).
+    #[error(
+        "a task's position in the signal cycle ({cycle}) needs traffic (on: {traffic}) and a value in [0, 1) \
+         (curriculum.signal_phase = \"task\" needs sim.traffic on)"
+    )]
+    CyclePosition {
+        /// The position given.
+        cycle: f32,
+        /// Whether the world has traffic.
+        traffic: bool,
+    },
     /// `step` was called on an environment whose episode ended, or that was never reset.
     #[error("environment {env} must be reset before it is stepped (episode over or never started)")]
     NeedsReset {

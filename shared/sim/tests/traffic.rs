@@ -169,6 +169,39 @@ fn the_same_seed_replays_the_same_traffic_and_another_seed_does_not() {
     assert_ne!(run(11), run(12));
 }
 
+/// A task may set the start's position in the signal cycle (the curriculum's
+/// `signal_phase = "task"`): the episode starts there, the same seed and position give
+/// the same traffic, and a position without traffic or outside [0, 1) is refused.
+#[test]
+fn a_task_sets_the_start_s_position_in_the_cycle() {
+    let w = world(TrafficLevel::Medium, ObsMode::State);
+    let cycle_s = w.traffic.as_ref().unwrap().0.plan.cycle_s;
+    let pose = Pose::from_degrees(14.0, -7.0, 180.0);
+    let mut env = VecEnv::new(w.clone(), 1, BackendChoice::Auto).unwrap();
+    for c in [0.0f32, 0.25, 0.6, 0.999] {
+        env.reset_in_cycle(0, pose, 5, Some(c)).unwrap();
+        let t = env.traffic(0).unwrap().t;
+        assert!((t - c as f64 * cycle_s).abs() < 1e-9, "cycle {c}: t = {t}");
+    }
+    let traffic = |env: &VecEnv| {
+        let s = env.traffic(0).unwrap();
+        let cars: Vec<[u32; 2]> =
+            s.lanes.iter().flat_map(|l| l.vehicles.iter().map(|v| [v.s.to_bits(), v.v.to_bits()])).collect();
+        (cars, s.walkers.iter().map(|w| w.pos.map(f32::to_bits)).collect::<Vec<_>>())
+    };
+    env.reset_in_cycle(0, pose, 5, Some(0.3)).unwrap();
+    let first = traffic(&env);
+    env.reset(0, pose, 6).unwrap();
+    env.reset_in_cycle(0, pose, 5, Some(0.3)).unwrap();
+    assert_eq!(first, traffic(&env), "the same seed and position, the same traffic");
+    for bad in [1.0f32, -0.1, f32::NAN] {
+        assert!(matches!(env.reset_in_cycle(0, pose, 5, Some(bad)), Err(SimError::CyclePosition { .. })), "{bad}");
+    }
+    let mut off = VecEnv::new(world(TrafficLevel::Off, ObsMode::State), 1, BackendChoice::Auto).unwrap();
+    let err = off.reset_in_cycle(0, pose, 5, Some(0.5)).unwrap_err().to_string();
+    assert!(err.contains("sim.traffic"), "{err}");
+}
+
 /// Reset environment 0 at `pose` with the first seed (from 0) whose start shows
 /// `want` on the east zebra.
 fn reset_showing(env: &mut VecEnv, pose: Pose, want: PedestrianSignal) {

@@ -253,7 +253,9 @@ impl CurriculumService {
                 yaw: p.pose.yaw,
                 category: p.category.code(),
                 task_id: self.next_task_id,
-            };
+                ..TaskResponse::default()
+            }
+            .with_cycle(p.cycle);
             self.next_task_id += 1;
             if let Err(e) = request.send_copy(response) {
                 tracing::warn!(actor = request.payload().actor, "task response not delivered: {e:?}");
@@ -308,6 +310,7 @@ impl CurriculumService {
                 rewards: points[1..].iter().map(|p| p.reward).collect(),
                 truncated: h.truncated != 0,
                 success: h.success != 0,
+                start_cycle: h.start_cycle(),
             };
             drop(sample);
             // Taken before it is recorded: a save inside `record` holds the report and
@@ -484,11 +487,12 @@ impl CurriculumService {
 /// ([`ServiceState::load_or_previous`]).
 pub fn load_curriculum(path: &Path, cfg: &RunConfig, scene: Scene) -> Result<(Curriculum, Option<ServiceState>)> {
     if !ServiceState::exists(path) {
-        return Ok((Curriculum::new(cfg.curriculum.clone(), scene, cfg.curriculum_seed())?, None));
+        return Ok((Curriculum::new(cfg.curriculum.clone(), scene, cfg.sim.dt, cfg.curriculum_seed())?, None));
     }
     let (saved, read) = ServiceState::load_or_previous(path)?;
-    let curriculum = pednav_curriculum::classify::restore(&cfg.curriculum, scene, cfg.curriculum_seed(), &saved)
-        .with_context(|| format!("restoring {}", read.display()))?;
+    let curriculum =
+        pednav_curriculum::classify::restore(&cfg.curriculum, scene, cfg.sim.dt, cfg.curriculum_seed(), &saved)
+            .with_context(|| format!("restoring {}", read.display()))?;
     Ok((curriculum, Some(saved)))
 }
 

@@ -295,7 +295,14 @@ fn curriculum(run: &Path, out: &Path, max: usize) -> Result<()> {
     if latest.exists() {
         snaps.push(latest);
     }
-    let n = plots::curriculum_snapshots(&cfg.scene()?, &cfg.curriculum, cfg.curriculum_seed(), &snaps, max, out)?;
+    let n = plots::curriculum_snapshots(
+        &cfg.scene()?,
+        &cfg.curriculum,
+        (cfg.sim.dt, cfg.curriculum_seed()),
+        &snaps,
+        max,
+        out,
+    )?;
     println!("wrote {} ({n} snapshots)", out.display());
     Ok(())
 }

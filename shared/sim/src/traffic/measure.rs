@@ -7,7 +7,7 @@
 //! yields to it) and reads its lanes; it changes no rule of the model.
 
 use super::vehicle::Crossings;
-use super::{Ground, Traffic, TrafficSettings, TrafficState, VehicleSignal};
+use super::{Ground, Traffic, TrafficSettings, TrafficStart, TrafficState, VehicleSignal};
 
 /// What one measurement found.
 #[derive(Debug, Clone, PartialEq)]
@@ -55,7 +55,8 @@ pub struct Bench<'a> {
 /// and measure it.
 pub fn measure(bench: Bench<'_>, traffic: &Traffic, settings: TrafficSettings, seconds: f64, seed: u64) -> FlowReport {
     let Bench { ground, far, agent_radius: r, dt } = bench;
-    let mut state = TrafficState::new(traffic, settings, seed, far, r, dt);
+    let mut state =
+        TrafficState::new(traffic, settings, TrafficStart { seed, cycle: None, agent: far, agent_radius: r }, dt);
     for lt in state.lanes.iter_mut() {
         lt.crossings = Some(Crossings::new());
     }

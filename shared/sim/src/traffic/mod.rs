@@ -34,7 +34,7 @@ use crate::geometry::{Axis, Polygon, Rect};
 
 pub use signal::{PedestrianSignal, SignalPlan, VehicleSignal};
 pub use spec::{TrafficSpec, VehicleStyle};
-pub use state::{AgentContact, SafetyCounts, SafetyEvents, TrafficState};
+pub use state::{AgentContact, SafetyCounts, SafetyEvents, TrafficStart, TrafficState};
 
 /// What moving bodies walk through: the static world's colliders. Implemented by
 /// [`crate::physics::StaticWorld`] (rapier's character controller); traffic only

@@ -94,21 +94,32 @@ pub struct TrafficState {
     claims: Vec<Vec<Claim>>,
 }
 
+/// Where and how an episode's traffic starts.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct TrafficStart {
+    /// The episode's seed (arrivals, walkers, and the cycle position unless `cycle` sets it).
+    pub seed: u64,
+    /// The start's position in the signal cycle, a fraction in [0, 1), when the task
+    /// sets it; `None` draws it from the seed.
+    pub cycle: Option<f32>,
+    /// The agent's start (vehicles and walkers keep clear of it).
+    pub agent: [f32; 2],
+    /// The agent's radius, metres.
+    pub agent_radius: f32,
+}
+
 impl TrafficState {
-    /// The traffic of a new episode: a phase offset drawn uniformly over the cycle,
-    /// `warmup_s` seconds of vehicles simulated before it (walkers are placed along
-    /// the network), vehicles within 1 m of the agent's start removed, walkers at
-    /// least 1.5 m from it. `dt` is the decision step (the warm-up runs the same sub-steps).
-    pub fn new(
-        traffic: &Traffic,
-        settings: TrafficSettings,
-        seed: u64,
-        agent: [f32; 2],
-        agent_radius: f32,
-        dt: f32,
-    ) -> TrafficState {
+    /// The traffic of a new episode: a phase offset drawn uniformly over the cycle
+    /// (or `start.cycle` of it: the draw is made either way, so the seed's stream
+    /// stays the same), `warmup_s` seconds of vehicles simulated
+    /// before it (walkers are placed along the network), vehicles within 1 m of the
+    /// agent's start removed, walkers at least 1.5 m from it. `dt` is the decision
+    /// step (the warm-up runs the same sub-steps).
+    pub fn new(traffic: &Traffic, settings: TrafficSettings, start: TrafficStart, dt: f32) -> TrafficState {
+        let TrafficStart { seed, cycle, agent, agent_radius } = start;
         let mut rng = ChaCha8Rng::seed_from_u64(seed ^ TRAFFIC_STREAM);
-        let offset = rng.random_range(0.0..traffic.plan.cycle_s);
+        let drawn = rng.random_range(0.0..traffic.plan.cycle_s);
+        let offset = cycle.map_or(drawn, |c| c as f64 * traffic.plan.cycle_s);
         let t0 = offset - traffic.warmup_s as f64;
         let lanes = traffic.lanes.iter().map(|_| LaneTraffic::new(&mut rng, settings.flow, t0)).collect();
         let mut state = TrafficState {
