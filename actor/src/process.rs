@@ -27,7 +27,7 @@ use pednav_runtime::messages::{EpisodeHeader, EpisodePoint, Faults, Heartbeat, P
 use pednav_runtime::stats::{self, ActorStats, ProcessStatus};
 use pednav_runtime::weights::WeightsClient;
 use pednav_runtime::write_health::WriteHealth;
-use pednav_runtime::{ActorPolicy, Ipc, Metrics, RunConfig, RunDir, StopFlag, run_prefix};
+use pednav_runtime::{ActorPolicy, Ipc, Metrics, RunConfig, RunDir, StopFlag};
 use pednav_sim::policy::RandomPolicy;
 use pednav_sim::{BackendChoice, DiscountedReturn, ObsMode, Policy, Pose, STATE_OBS_MAX, SimWorld, VecEnv};
 use rand::{Rng, SeedableRng};
@@ -147,13 +147,7 @@ impl ActorProcess {
         if let Some(r) = envs.renderer() {
             tracing::info!(adapter = %r.adapter_description(), envs = m, "renderer ready");
         }
-        let ipc = Ipc::new(
-            &run_prefix(dir.root()),
-            &name,
-            cfg.runtime.step_buffer,
-            Duration::from_secs_f64(cfg.runtime.give_up_secs),
-            stop.clone(),
-        )?;
+        let ipc = dir.join_ipc(&cfg, &name, stop.clone())?;
         let steps = StepWriter::open(
             &ipc,
             StreamId { actor: opts.actor, incarnation },

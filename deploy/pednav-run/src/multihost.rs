@@ -125,7 +125,8 @@ pub fn join(args: Join) -> Result<()> {
     };
     std::fs::create_dir_all(&run_dir).with_context(|| format!("creating {}", run_dir.display()))?;
     let offered = run_dir.join("config.learner-host.toml");
-    std::fs::write(&offered, &grant.config_toml).with_context(|| format!("writing {}", offered.display()))?;
+    pednav_runtime::generations::write_atomic(&offered, grant.config_toml.as_bytes())
+        .with_context(|| format!("writing {}", offered.display()))?;
     let cfg = RunConfig::load(&offered).context("the learner host's config is not valid for this pednav build")?;
     cfg.scene().with_context(
         || "the run's scene cannot be loaded on this host (a scene file must be at the same path on every host)",

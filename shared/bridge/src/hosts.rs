@@ -14,6 +14,7 @@
 use std::ops::Range;
 use std::path::Path;
 
+use pednav_runtime::generations::write_atomic;
 use pednav_runtime::ipc::MAX_ACTORS;
 use serde::{Deserialize, Serialize};
 
@@ -185,14 +186,10 @@ impl HostTable {
         Ok(Some(table))
     }
 
-    /// Write the table to `path`: whole to `path.tmp`, then renamed over `path`.
+    /// Write the table to `path` in one step ([`write_atomic`]).
     pub fn save(&self, path: &Path) -> Result<()> {
-        let tmp = path.with_extension("json.tmp");
-        let io = |source| BridgeError::Io { path: tmp.clone(), source };
         let text = serde_json::to_string_pretty(self).expect("a host table serialises");
-        std::fs::write(&tmp, text).map_err(io)?;
-        std::fs::File::open(&tmp).and_then(|f| f.sync_all()).map_err(io)?;
-        std::fs::rename(&tmp, path).map_err(|source| BridgeError::Io { path: path.to_path_buf(), source })
+        write_atomic(path, text.as_bytes()).map_err(|source| BridgeError::Io { path: path.to_path_buf(), source })
     }
 }
 

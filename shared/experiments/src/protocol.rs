@@ -19,6 +19,9 @@ pub const YAWS_DEG: [f32; 8] = [0.0, 45.0, -45.0, 90.0, -90.0, 135.0, -135.0, 18
 pub const RUNS: u32 = 10;
 /// T_max of validation episodes in the paper.
 pub const T_MAX: u32 = 2000;
+/// The discount of the protocol's returns (Table IV's γ): every Avg.Int / Avg.Ext is
+/// discounted by it, whatever discount a run trained with, so tables compare.
+pub const GAMMA: f32 = 0.99;
 /// Points 0–7 are interpolated (inside the curriculum region): Avg.Int.
 pub const INTERIOR: std::ops::Range<u32> = 0..8;
 

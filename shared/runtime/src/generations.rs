@@ -23,6 +23,10 @@
 //!
 //! The crash and fault tests drive the same steps: [`SaveFault::KillAfter`] stops a
 //! save as a kill would, [`SaveFault::FailAt`] makes one step fail with an I/O error.
+//!
+//! Files kept as one generation (the run's config, stats files, the host table, the
+//! start counters) are replaced with [`write_atomic`], the one temporary-file-and-rename
+//! write of the workspace: a reader sees the old file or the new one, never a part.
 
 use std::fs;
 use std::io;
@@ -269,6 +273,52 @@ pub fn write_synced(path: &Path, bytes: &[u8]) -> io::Result<()> {
     f.sync_all()
 }
 
+/// Replace the file at `path` with `bytes` in one step: written whole and synced to
+/// `<path>.tmp`, renamed over `path`, then the folder synced. A reader sees the old file
+/// or the new one, never a part; on failure the temporary file is removed (a full disk
+/// is left no fuller) and the old file stays as it was.
+pub fn write_atomic(path: &Path, bytes: &[u8]) -> io::Result<()> {
+    let mut tmp = path.as_os_str().to_owned();
+    tmp.push(".tmp");
+    let tmp = PathBuf::from(tmp);
+    if let Err(e) = write_synced(&tmp, bytes).and_then(|()| fs::rename(&tmp, path)) {
+        let _ = fs::remove_file(&tmp);
+        return Err(e);
+    }
+    match path.parent() {
+        Some(folder) if !folder.as_os_str().is_empty() => sync_path(folder),
+        _ => Ok(()),
+    }
+}
+
+/// Attempts of a process's save at stop ([`final_save`]).
+pub const FINAL_SAVE_ATTEMPTS: u32 = 3;
+
+/// Pause between two attempts of a save at stop (space may be freed meanwhile).
+pub const FINAL_SAVE_PAUSE: std::time::Duration = std::time::Duration::from_secs(2);
+
+/// The one save-at-stop path of the processes (the learner's final checkpoint, the
+/// curriculum service's final state): `save` tried [`FINAL_SAVE_ATTEMPTS`] times,
+/// [`FINAL_SAVE_PAUSE`] apart, each failure but the last logged as `what`'s; the last
+/// error comes back, for the process to end with it (the launcher shows the cause).
+pub fn final_save<E: std::fmt::Display>(what: &str, mut save: impl FnMut() -> Result<(), E>) -> Result<(), E> {
+    let mut attempt = 1;
+    loop {
+        match save() {
+            Ok(()) => return Ok(()),
+            Err(e) if attempt < FINAL_SAVE_ATTEMPTS => {
+                tracing::warn!(
+                    "{what} FAILED (attempt {attempt} of {FINAL_SAVE_ATTEMPTS}): {e}; trying again in {} s",
+                    FINAL_SAVE_PAUSE.as_secs()
+                );
+                std::thread::sleep(FINAL_SAVE_PAUSE);
+                attempt += 1;
+            }
+            Err(e) => return Err(e),
+        }
+    }
+}
+
 /// Is this the error of a full disk (or a full quota)?
 pub fn is_disk_full(error: &io::Error) -> bool {
     matches!(error.kind(), io::ErrorKind::StorageFull | io::ErrorKind::QuotaExceeded)
@@ -293,6 +343,41 @@ mod tests {
             |p, s| s.run(|| format!("write and sync {}", p.display()), || write_synced(p, text.as_bytes())),
             |p| fs::read_to_string(p).map(|_| ()).map_err(|e| e.to_string()),
         )
+    }
+
+    #[test]
+    fn a_final_save_tries_three_times_and_returns_the_last_error() {
+        let mut calls = 0;
+        let ok = final_save("test state", || {
+            calls += 1;
+            if calls < 2 { Err(format!("failure {calls}")) } else { Ok(()) }
+        });
+        assert_eq!((ok, calls), (Ok(()), 2), "the second attempt saved");
+        let mut calls = 0;
+        let err = final_save("test state", || {
+            calls += 1;
+            Err::<(), _>(format!("failure {calls}"))
+        });
+        assert_eq!((err, calls), (Err("failure 3".to_string()), 3));
+    }
+
+    #[test]
+    fn an_atomic_write_replaces_the_file_whole_or_leaves_it_as_it_was() {
+        let d = scratch("atomic");
+        let path = d.join("stats.json");
+        write_atomic(&path, b"first").unwrap();
+        write_atomic(&path, b"second, longer").unwrap();
+        assert_eq!(fs::read_to_string(&path).unwrap(), "second, longer");
+        assert!(!d.join("stats.json.tmp").exists(), "no temporary file left");
+        // The rename fails (a folder stands at the path): the error comes back, nothing is left behind.
+        let blocked = d.join("blocked");
+        fs::create_dir_all(blocked.join("inside")).unwrap();
+        assert!(write_atomic(&blocked, b"x").is_err());
+        assert!(blocked.join("inside").is_dir() && !d.join("blocked.tmp").exists());
+        // The write fails (no such folder): the error, and no file anywhere.
+        assert!(write_atomic(&d.join("missing/stats.json"), b"x").is_err());
+        assert_eq!(fs::read_to_string(&path).unwrap(), "second, longer");
+        let _ = fs::remove_dir_all(&d);
     }
 
     #[test]

@@ -22,6 +22,9 @@ use std::path::{Path, PathBuf};
 
 use crate::config::RunConfig;
 use crate::error::{Result, RuntimeError};
+use crate::generations::write_atomic;
+use crate::ipc::{Ipc, run_prefix};
+use crate::signal::StopFlag;
 
 /// Paths of one run.
 #[derive(Debug, Clone)]
@@ -53,11 +56,18 @@ impl RunDir {
             }
             Ok(true)
         } else {
-            let tmp = path.with_extension("toml.tmp");
-            std::fs::write(&tmp, config.to_toml()).map_err(|e| RuntimeError::file(&tmp, e))?;
-            std::fs::rename(&tmp, &path).map_err(|e| RuntimeError::file(&path, e))?;
+            write_atomic(&path, config.to_toml().as_bytes())
+                .map_err(|source| RuntimeError::Write { path: path.clone(), source })?;
             Ok(false)
         }
+    }
+
+    /// Join this run's services as the process `name` — how every process of a run
+    /// (actor, learner, curriculum service) opens its [`Ipc`]: the run's prefix, its
+    /// `runtime.step_buffer` and `runtime.give_up_secs`.
+    pub fn join_ipc(&self, cfg: &RunConfig, name: &str, stop: StopFlag) -> Result<Ipc> {
+        let give_up = std::time::Duration::from_secs_f64(cfg.runtime.give_up_secs);
+        Ipc::new(&run_prefix(&self.root), name, cfg.runtime.step_buffer, give_up, stop)
     }
 
     /// The run's resolved config.
@@ -154,14 +164,8 @@ impl RunDir {
     /// Write a stats file atomically (`stats/<name>.json`; the types are [`crate::stats`]).
     pub fn write_stats(&self, name: &str, value: &impl serde::Serialize) -> Result<()> {
         let path = self.stats().join(format!("{name}.json"));
-        let tmp = path.with_extension("json.tmp");
         let text = serde_json::to_string_pretty(value).expect("stats serialise");
-        let write = |path: &Path, source| RuntimeError::Write { path: path.to_path_buf(), source };
-        // A failed write leaves no temporary file behind (a full disk would keep it full).
-        std::fs::write(&tmp, text).and_then(|()| std::fs::rename(&tmp, &path)).map_err(|e| {
-            let _ = std::fs::remove_file(&tmp);
-            write(&path, e)
-        })
+        write_atomic(&path, text.as_bytes()).map_err(|source| RuntimeError::Write { path, source })
     }
 
     /// Read a stats file (`stats/<name>.json`): `None` when it does not exist (yet); an
@@ -178,7 +182,7 @@ impl RunDir {
     pub fn next_incarnation(&self, name: &str) -> Result<u32> {
         let path = self.stats().join(format!("{name}.starts"));
         let n = std::fs::read_to_string(&path).ok().and_then(|s| s.trim().parse::<u32>().ok()).unwrap_or(0) + 1;
-        std::fs::write(&path, n.to_string()).map_err(|e| RuntimeError::file(&path, e))?;
+        write_atomic(&path, n.to_string().as_bytes()).map_err(|source| RuntimeError::Write { path, source })?;
         Ok(n)
     }
 }

@@ -26,7 +26,7 @@ use pednav_runtime::messages::{EpisodeHeader, Faults, Heartbeat, ProcessKind, Ta
 use pednav_runtime::reports::ReportCursors;
 use pednav_runtime::stats::{CurriculumStats, GateOpened, ReportsTaken};
 use pednav_runtime::write_health::WriteHealth;
-use pednav_runtime::{AppendFile, Ipc, Metrics, RunConfig, RunDir, StopFlag, columns, run_prefix};
+use pednav_runtime::{AppendFile, Ipc, Metrics, RunConfig, RunDir, StopFlag, columns};
 use pednav_sim::{Pose, Scene};
 
 /// Reported episodes between two saved snapshots of the curriculum state
@@ -136,13 +136,7 @@ impl CurriculumService {
             None => (1, BTreeMap::new(), 0, ReportCursors::default()),
         };
         std::fs::create_dir_all(dir.curriculum_snapshots())?;
-        let ipc = Ipc::new(
-            &run_prefix(dir.root()),
-            "curriculum",
-            cfg.runtime.step_buffer,
-            Duration::from_secs_f64(cfg.runtime.give_up_secs),
-            stop.clone(),
-        )?;
+        let ipc = dir.join_ipc(&cfg, "curriculum", stop.clone())?;
         let server = ipc.task_server()?;
         let reports = ipc.episode_subscriber()?;
         let report_acks = ipc.episode_ack_publisher()?;
@@ -396,25 +390,14 @@ impl CurriculumService {
         }
     }
 
-    /// The state at stop: tried three times, 2 s apart; an error naming the cause when
-    /// none succeeds.
+    /// The state at stop ([`pednav_runtime::generations::final_save`]); an error naming
+    /// the cause when no attempt succeeds.
     fn final_save(&mut self) -> Result<()> {
-        for attempt in 1..=3 {
-            match self.save(&self.dir.curriculum_state()) {
-                Ok(()) => {
-                    self.saved();
-                    return Ok(());
-                }
-                Err(e) if attempt < 3 => {
-                    tracing::warn!(
-                        "final curriculum state FAILED (attempt {attempt} of 3): {e:#}; trying again in 2 s"
-                    );
-                    std::thread::sleep(Duration::from_secs(2));
-                }
-                Err(e) => return Err(e.context("the final curriculum state could not be written")),
-            }
-        }
-        unreachable!("the last attempt returns")
+        let path = self.dir.curriculum_state();
+        pednav_runtime::generations::final_save("final curriculum state", || self.save(&path))
+            .map_err(|e| e.context("the final curriculum state could not be written"))?;
+        self.saved();
+        Ok(())
     }
 
     /// Metrics row, log line and heartbeat; statistics that do not exist yet (no

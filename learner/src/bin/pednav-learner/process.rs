@@ -24,7 +24,7 @@ use pednav_runtime::messages::{Faults, Heartbeat, ProcessKind, StepFlags, StepHe
 use pednav_runtime::stats::{LearnerStats, LimiterCounters, ProcessStatus};
 use pednav_runtime::weights::WeightsBroadcaster;
 use pednav_runtime::write_health::WriteHealth;
-use pednav_runtime::{Ipc, Metrics, RunConfig, RunDir, StopFlag, run_prefix};
+use pednav_runtime::{Ipc, Metrics, RunConfig, RunDir, StopFlag};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 
@@ -244,13 +244,7 @@ impl LearnerProcess {
             refill_until: if resumed_from.is_some() { cfg.dsac.warmup } else { 0 },
             resumed_from,
         };
-        let ipc = Ipc::new(
-            &run_prefix(dir.root()),
-            "learner",
-            cfg.runtime.step_buffer,
-            Duration::from_secs_f64(cfg.runtime.give_up_secs),
-            stop.clone(),
-        )?;
+        let ipc = dir.join_ipc(&cfg, "learner", stop.clone())?;
         let steps_in = ipc.step_subscriber()?;
         let acks_out = ipc.ack_publisher()?;
         let heartbeats_in = ipc.heartbeat_subscriber()?;
@@ -425,24 +419,14 @@ impl LearnerProcess {
         }
     }
 
-    /// The checkpoint at stop: tried three times, 2 s apart (space may be freed
-    /// meanwhile); an error when none succeeds, so the launcher shows the cause.
+    /// The checkpoint at stop ([`pednav_runtime::generations::final_save`]); an error
+    /// when no attempt succeeds, so the launcher shows the cause.
     fn final_save(&mut self) -> Result<()> {
-        for attempt in 1..=3 {
-            match self.save() {
-                Ok(()) => return Ok(()),
-                Err(e) if attempt < 3 => {
-                    tracing::warn!("final checkpoint FAILED (attempt {attempt} of 3): {e}; trying again in 2 s");
-                    std::thread::sleep(Duration::from_secs(2));
-                }
-                Err(e) => {
-                    let last = self.last_good.map_or("none".into(), |u| format!("update {u}"));
-                    return Err(anyhow::Error::new(e)
-                        .context(format!("the final checkpoint could not be written (last good on disk: {last})")));
-                }
-            }
-        }
-        unreachable!("the last attempt returns")
+        pednav_runtime::generations::final_save("final checkpoint", || self.save()).map_err(|e| {
+            let last = self.last_good.map_or("none".into(), |u| format!("update {u}"));
+            anyhow::Error::new(e)
+                .context(format!("the final checkpoint could not be written (last good on disk: {last})"))
+        })
     }
 
     /// Write the learner's live stats; a failure is logged once per interval.

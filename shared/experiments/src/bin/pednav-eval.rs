@@ -96,6 +96,11 @@ struct Cli {
     /// Episode limit. Paper: 2000.
     #[arg(long, default_value_t = protocol::T_MAX)]
     t_max: u32,
+    /// Discount of the returns reported (and of the oracle's plan). Default: the
+    /// protocol's 0.99 (Table IV), whatever `dsac.gamma` the run trained with, so that
+    /// runs trained with another discount compare with every other table.
+    #[arg(long, default_value_t = protocol::GAMMA)]
+    gamma: f32,
     /// Start poses from a CSV file (`x,y,yaw`, degrees) instead of the 14 points × 8 yaws.
     #[arg(long)]
     starts: Option<PathBuf>,
@@ -214,7 +219,10 @@ fn main() -> Result<()> {
     pednav_nets::init_cpu_runtime(Some(1));
     let (cfg, nets) = setup(&cli)?;
     let all = tasks(&cli, &cfg)?;
-    let gamma = cfg.dsac.gamma as f32;
+    if !(cli.gamma > 0.0 && cli.gamma < 1.0) {
+        bail!("--gamma must lie in (0, 1), got {}", cli.gamma);
+    }
+    let gamma = cli.gamma;
 
     if let Some(k) = cli.shard {
         // Worker: run a shard, write JSON.
@@ -422,6 +430,7 @@ fn run_workers(cli: &Cli, out: &Path, shown: &mut Progress) -> Result<Vec<Episod
         cmd.args(["--mode", &format!("{:?}", cli.mode).to_lowercase()]);
         cmd.args(["--policy", policy_arg(cli.policy)])
             .args(["--runs", &cli.runs.to_string(), "--t-max", &cli.t_max.to_string()])
+            .args(["--gamma", &cli.gamma.to_string()])
             .args(["--envs", &cli.envs.to_string(), "--seed", &cli.seed.to_string()])
             .args(["--shard", &k.to_string(), "--of", &cli.workers.to_string()])
             .args(["--device", &cli.device.to_string()])
