@@ -374,11 +374,10 @@ impl ActorProcess {
                 length: ep.step,
                 discounted_return: ep.ret.value() as f32,
                 total_reward: ep.ret.undiscounted() as f32,
-                start_cycle: ep.cycle.unwrap_or(0.0),
-                has_cycle: ep.cycle.is_some() as u32,
                 // The reporter numbers it (seq, low-water mark).
                 ..EpisodeHeader::default()
-            };
+            }
+            .with_start_cycle(ep.cycle);
             self.reports.report(header, &ep.points)?;
             let c = &mut self.counters;
             c.episodes += 1;

@@ -245,6 +245,11 @@ impl EpisodeHeader {
     pub fn start_cycle(&self) -> Option<f32> {
         (self.has_cycle != 0).then_some(self.start_cycle)
     }
+
+    /// Set (or clear) the start's position in the signal cycle.
+    pub fn with_start_cycle(self, cycle: Option<f32>) -> EpisodeHeader {
+        EpisodeHeader { start_cycle: cycle.unwrap_or(0.0), has_cycle: cycle.is_some() as u32, ..self }
+    }
 }
 
 /// One point of an episode: the pose reached and the reward of the step that led there.
