@@ -5,7 +5,9 @@
 #                                     # and target-cuda/pednav-cuda.tar.xz to carry to a GPU machine
 #   ./deploy/build_cuda.sh --bins     # only the process binaries (target-cuda/release; what
 #                                     # `run_local.sh --device cuda` runs)
-#   ./deploy/build_cuda.sh --check    # only `cargo check` pednav-nets with CUDA (what CI runs)
+#   ./deploy/build_cuda.sh --check    # only `cargo check` pednav-nets with CUDA (what CI runs;
+#                                     # candle's kernels preprocessed, not compiled:
+#                                     # deploy/nvcc_preprocess_only.sh)
 #
 # What it does:
 # - installs NVIDIA's CUDA compiler from PyPI (nvidia-cuda-nvcc, -cccl, -runtime, -crt)
@@ -70,10 +72,22 @@ features=(--features pednav-nets/cuda)
 start=$(date +%s)
 
 if [ "$mode" = check ]; then
-    # Only pednav-nets has code under `feature = "cuda"` (its device selection); the
-    # crates above it compile the same source either way, so checking them again here
-    # (with wgpu, rapier and iceoryx2 under them) would only repeat the CPU build's work.
-    cargo check --locked --target-dir "$target" "${features[@]}" -p pednav-nets --all-targets
+    # Only pednav-nets's library has code under `feature = "cuda"` (its device
+    # selection); its tests and benches, and the crates above it, compile the same
+    # source either way, so checking them again here (with criterion and proptest, or
+    # wgpu, rapier and iceoryx2 under them) would only repeat the CPU build's work.
+    # candle's kernels are preprocessed, not compiled: `cargo check` never uses them
+    # (deploy/nvcc_preprocess_only.sh; PEDNAV_CUDA_CHECK_KERNELS=1 compiles them too).
+    # Its empty kernels get a target directory of their own: candle's build script
+    # caches kernels by source and flags, not by compiler, and would take them for
+    # compiled ones in any later build beside them.
+    check_target="$target"
+    if [[ "${PEDNAV_CUDA_CHECK_KERNELS:-0}" != 1 ]]; then
+        install -m 755 deploy/nvcc_preprocess_only.sh "$root/bin/nvcc-preprocess-only"
+        export PEDNAV_REAL_NVCC="$root/bin/nvcc" NVCC="$root/bin/nvcc-preprocess-only"
+        check_target="$target/preprocess-only"
+    fi
+    cargo check --locked --target-dir "$check_target" "${features[@]}" -p pednav-nets --lib
     echo "build_cuda.sh: CUDA build checks ($(( $(date +%s) - start )) s)" >&2
     exit 0
 fi

@@ -3,9 +3,9 @@
 //! classified by the task-value net into easy / frontier / hard / neither with
 //! the bands of the current t_c; μ and σ fitted on a fresh set of candidate
 //! tasks, as the scheduler does (when the signal phase is part of the task, a cell's
-//! value is the mean of the net's over 8 evenly spaced positions in the cycle); and
-//! the curriculum restored from a saved state of
-//! the service process ([`ServiceState`]), so snapshots can be drawn after the fact.
+//! value is the mean of the net's over 8 evenly spaced positions in the cycle), for a
+//! running curriculum or one continued from a saved state of the service process
+//! ([`crate::Curriculum::from_saved`]), so snapshots can be drawn after the fact.
 
 use std::collections::BTreeMap;
 
@@ -19,7 +19,6 @@ use crate::error::Result;
 use crate::filter::{Category, Fit, bands};
 use crate::returns::{TaskFeatures, task_features};
 use crate::sampler::TaskSampler;
-use crate::state_file::ServiceState;
 
 /// Positions in the signal cycle a cell's value is averaged over, when the phase is
 /// part of the task.
@@ -97,7 +96,7 @@ pub fn classify_region(
     cell: f32,
 ) -> Result<Option<Classification>> {
     let sampler = TaskSampler::new(scene, cfg.enlarged_region, cfg.max_rejections);
-    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(1);
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(pednav_config::rng::CLASSIFICATION_CANDIDATES);
     let cycles: Vec<Option<f32>> = if curriculum.has_cycle() {
         (0..CYCLE_POINTS).map(|k| Some(k as f32 / CYCLE_POINTS as f32)).collect()
     } else {
@@ -150,11 +149,4 @@ pub fn classify_region(
         })
         .collect();
     Ok(Some(Classification { fit, cells, cell, t_c, acl: curriculum.scheduler().in_acl_phase() }))
-}
-
-/// A curriculum restored from a saved service state (`dt`: seconds of a decision step).
-pub fn restore(cfg: &CurriculumConfig, scene: Scene, dt: f32, seed: u64, state: &ServiceState) -> Result<Curriculum> {
-    let mut c = Curriculum::new(cfg.clone(), scene, dt, seed)?;
-    c.restore(&state.curriculum)?;
-    Ok(c)
 }

@@ -135,6 +135,20 @@ impl Curriculum {
         })
     }
 
+    /// A curriculum continued from a saved state: [`Curriculum::new`], then
+    /// [`Curriculum::restore`] (`dt`: seconds of a decision step).
+    pub fn from_saved(
+        cfg: CurriculumConfig,
+        scene: Scene,
+        dt: f32,
+        seed: u64,
+        state: &CurriculumState,
+    ) -> Result<Curriculum> {
+        let mut c = Curriculum::new(cfg, scene, dt, seed)?;
+        c.restore(state)?;
+        Ok(c)
+    }
+
     /// Continue from a saved state (same variant and net architecture).
     pub fn restore(&mut self, state: &CurriculumState) -> Result<()> {
         if state.variant != self.cfg.variant {

@@ -404,6 +404,38 @@ pub fn load_agent(dir: &Path, device: &Device) -> Result<TrainedAgent> {
     Ok(TrainedAgent { nets, alpha, meta })
 }
 
+/// Start `dsac` from the online networks and temperature of the checkpoint in `dir` —
+/// a run's checkpoint or a results folder that keeps [`agent_files`] — for a new run
+/// (`dsac.init_from`: a warm start). The architecture, the twin critic and every file
+/// read are verified before anything changes; the Polyak targets then become copies of
+/// the loaded critics. The optimisers' moments, the counters, the RNG and the auxiliary
+/// heads keep their fresh state: a warm start is a new run whose networks begin where
+/// another's ended, not a resume. On any error `dsac` is unchanged.
+pub fn warm_start(dir: &Path, dsac: &mut Dsac) -> Result<CheckpointMeta> {
+    let meta = read_meta(dir)?;
+    if !meta.nets.same_architecture(&dsac.nets.cfg) {
+        return Err(ck_err(
+            dir,
+            format!("it holds networks {:?}, this run's are {:?} (`[nets]`)", meta.nets, dsac.nets.cfg),
+        ));
+    }
+    if meta.twin_critics != dsac.nets.parts().twin_critic {
+        let (has, wants) = if meta.twin_critics { ("has a", "without") } else { ("has no", "with") };
+        return Err(ck_err(
+            dir,
+            format!("it {has} twin critic and this run is configured {wants} one (`dsac.twin_critics`)"),
+        ));
+    }
+    let mut stores = dsac.nets.online_stores();
+    stores.push(&dsac.log_alpha);
+    load_stores(dir, &meta, &stores)?;
+    dsac.nets.target.store.copy_from(&dsac.nets.quantile.store)?;
+    if let Some(twin) = &dsac.nets.twin {
+        twin.target.store.copy_from(&twin.quantile.store)?;
+    }
+    Ok(meta)
+}
+
 /// The files of a checkpoint that [`load_acting`] reads for `nets`: the state file
 /// and the acting networks' weights — what a results folder keeps of a run.
 pub fn acting_files(nets: &DsacNets) -> Vec<String> {

@@ -14,7 +14,7 @@ pub mod replay;
 
 pub use checkpoint::{
     CheckpointMeta, TrainedAgent, acting_files, agent_files, checkpoint_exists, load_acting, load_agent,
-    load_checkpoint, load_checkpoint_or_previous, previous_generation, read_meta, save_checkpoint,
+    load_checkpoint, load_checkpoint_or_previous, previous_generation, read_meta, save_checkpoint, warm_start,
 };
 pub use device_check::{DeviceComparison, compare_update, fill_replay};
 pub use dsac::{Dsac, UpdateStats, fraction_gradient, quantile_huber_loss, smaller_mean};

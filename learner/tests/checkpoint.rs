@@ -25,7 +25,7 @@ use candle_core::Device;
 use pednav_learner::checkpoint::save_checkpoint_interrupted;
 use pednav_learner::{
     CheckpointMeta, Dsac, DsacConfig, acting_files, agent_files, checkpoint_exists, load_acting, load_agent,
-    load_checkpoint, load_checkpoint_or_previous, previous_generation, save_checkpoint,
+    load_checkpoint, load_checkpoint_or_previous, previous_generation, save_checkpoint, warm_start,
 };
 use pednav_nets::{DsacNets, NetsConfig};
 use rand::{Rng, SeedableRng};
@@ -194,6 +194,75 @@ fn checkpoints_round_trip_bit_exactly_and_bad_ones_change_nothing() {
     std::fs::remove_file(diag.join("fraction.safetensors")).unwrap();
     let err = load_agent(&diag, &Device::Cpu).err().expect("a missing file is refused").to_string();
     assert!(err.contains("fraction.safetensors"), "{err}");
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// Flat values of `stores`, store by store (see [`all_values`]).
+fn values_of(stores: &[&pednav_nets::ParamStore]) -> Vec<Vec<f32>> {
+    stores.iter().flat_map(|s| s.vars()).map(|(_, v)| v.flatten_all().unwrap().to_vec1().unwrap()).collect()
+}
+
+#[test]
+fn a_warm_start_takes_the_online_networks_and_temperature_and_starts_everything_else_fresh() {
+    let dir = scratch("warm");
+    let mut rng = ChaCha8Rng::seed_from_u64(8);
+    let (cfg, nets) = small();
+    let cfg = DsacConfig { twin_critics: true, contrast_weight: 1.0, ..cfg };
+    let mut trained = Dsac::new(&cfg, &nets, &Device::Cpu, 1).unwrap();
+    for _ in 0..4 {
+        trained.update(&state_batch(16, &mut rng)).unwrap();
+    }
+    let ck = dir.join("trained");
+    save_checkpoint(&ck, &mut trained, None, serde_json::Value::Null).unwrap();
+    // What a results folder keeps: the state file and agent_files, nothing else.
+    let kept = dir.join("kept");
+    std::fs::create_dir_all(&kept).unwrap();
+    for f in agent_files(&trained.nets) {
+        std::fs::copy(ck.join(&f), kept.join(&f)).unwrap();
+    }
+    for from in [&ck, &kept] {
+        let mut warm = Dsac::new(&cfg, &nets, &Device::Cpu, 2).unwrap();
+        let fresh = Dsac::new(&cfg, &nets, &Device::Cpu, 2).unwrap();
+        let meta = warm_start(from, &mut warm).unwrap();
+        assert_eq!(meta.updates, 4);
+        assert_eq!(values_of(&warm.nets.online_stores()), values_of(&trained.nets.online_stores()));
+        assert_eq!(values_of(&[&warm.log_alpha]), values_of(&[&trained.log_alpha]));
+        // The targets copy the loaded critics (the trained run's targets lag theirs).
+        let twin = warm.nets.twin.as_ref().unwrap();
+        assert_eq!(values_of(&[&warm.nets.target.store]), values_of(&[&warm.nets.quantile.store]));
+        assert_eq!(values_of(&[&twin.target.store]), values_of(&[&twin.quantile.store]));
+        assert_ne!(values_of(&[&warm.nets.target.store]), values_of(&[&trained.nets.target.store]));
+        // The auxiliary head, counters and RNG are a fresh run's.
+        let head = |d: &Dsac| values_of(&[&d.nets.contrast_head.as_ref().unwrap().store]);
+        assert_eq!(head(&warm), head(&fresh));
+        assert_eq!((warm.updates, warm.rng.clone()), (0, fresh.rng.clone()));
+        // The optimisers too: the first update of a warm start equals that of a learner
+        // given the same weights by hand (fresh moments, step 1).
+        let mut by_hand = Dsac::new(&cfg, &nets, &Device::Cpu, 2).unwrap();
+        let mut stores = by_hand.nets.online_stores();
+        stores.push(&by_hand.log_alpha);
+        for (to, from) in stores.iter().zip(trained.nets.online_stores().into_iter().chain([&trained.log_alpha])) {
+            to.copy_from(from).unwrap();
+        }
+        by_hand.nets.target.store.copy_from(&by_hand.nets.quantile.store).unwrap();
+        let t = by_hand.nets.twin.as_ref().unwrap();
+        t.target.store.copy_from(&t.quantile.store).unwrap();
+        let batch = state_batch(16, &mut rng);
+        assert_eq!(warm.update(&batch).unwrap(), by_hand.update(&batch).unwrap());
+        assert_eq!(all_values(&warm), all_values(&by_hand));
+    }
+    // Another architecture, or one critic where the folder has two: refused naming the
+    // setting, nothing changed.
+    let mut other = Dsac::new(&cfg, &NetsConfig { hidden: 16, ..nets.clone() }, &Device::Cpu, 3).unwrap();
+    let untouched = all_values(&other);
+    let err = warm_start(&kept, &mut other).unwrap_err().to_string();
+    assert!(err.contains("[nets]"), "{err}");
+    assert_eq!(untouched, all_values(&other));
+    let mut one = Dsac::new(&DsacConfig { twin_critics: false, ..cfg.clone() }, &nets, &Device::Cpu, 3).unwrap();
+    let untouched = all_values(&one);
+    let err = warm_start(&kept, &mut one).unwrap_err().to_string();
+    assert!(err.contains("has a twin critic") && err.contains("dsac.twin_critics"), "{err}");
+    assert_eq!(untouched, all_values(&one));
     let _ = std::fs::remove_dir_all(&dir);
 }
 

@@ -17,14 +17,43 @@ See ``python/README.md``.
 from __future__ import annotations
 
 import os
+import stat
+import tempfile
 
 from gymnasium.envs.registration import register, registry
 
-from pednav_gym import _pednav
-from pednav_gym._pednav import PednavError
-from pednav_gym._simulator import ValidationStart
-from pednav_gym.env import CornerEnv
-from pednav_gym.vector import CornerVectorEnv
+
+def _give_mesa_a_runtime_dir() -> None:
+    """Set ``XDG_RUNTIME_DIR`` to a private directory when it is unset or not a directory.
+
+    Without it Mesa prints ``error: XDG_RUNTIME_DIR is invalid or not set`` for every
+    renderer it opens. The simulator's commands set the same directory
+    (``<tmp>/pednav-runtime-<uid>``, mode 0700) at start, while they are one thread;
+    the extension module cannot — by the time it loads, NumPy's and Gymnasium's
+    imports have started threads, and the simulator never calls ``setenv`` beside
+    another thread — so the package does it here, through ``os.environ`` as Python
+    programs do, before the extension loads and long before a renderer opens.
+    """
+    current = os.environ.get("XDG_RUNTIME_DIR")
+    if current and os.path.isdir(current):
+        return
+    path = os.path.join(tempfile.gettempdir(), f"pednav-runtime-{os.getuid()}")
+    try:
+        os.makedirs(path, mode=0o700, exist_ok=True)
+        info = os.lstat(path)
+    except OSError:
+        return  # Mesa will say so itself; rendering still works
+    if stat.S_ISDIR(info.st_mode) and info.st_uid == os.getuid() and info.st_mode & 0o077 == 0:
+        os.environ["XDG_RUNTIME_DIR"] = path
+
+
+_give_mesa_a_runtime_dir()
+
+from pednav_gym import _pednav  # noqa: E402  (after the runtime directory is set)
+from pednav_gym._pednav import PednavError  # noqa: E402
+from pednav_gym._simulator import ValidationStart  # noqa: E402
+from pednav_gym.env import CornerEnv  # noqa: E402
+from pednav_gym.vector import CornerVectorEnv  # noqa: E402
 
 #: The Gymnasium id of the crossing task.
 ENV_ID = "pednav/Corner-v0"

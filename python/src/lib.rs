@@ -84,7 +84,8 @@ mod extension {
 
     /// Give the graphics stack a private runtime directory when none is set, as the
     /// simulator's commands do (`pednav_sim::prepare_headless_env`, which does nothing
-    /// once other threads run).
+    /// once other threads run: from Python they always do, so `pednav_gym/__init__.py`
+    /// sets the same directory before importing this module).
     #[pymodule_init]
     fn init() {
         pednav_sim::prepare_headless_env();

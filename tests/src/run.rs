@@ -22,6 +22,7 @@ pub fn bin_dir() -> PathBuf {
         ("pednav-actor", "actor", "pednav-actor"),
         ("pednav-learner", "learner", "pednav-learner"),
         ("pednav-curriculum", "curriculum-service", "pednav-curriculum"),
+        ("pednav-bench", "deploy/pednav-bench", "pednav-bench"), // what `pednav-run bench` runs
     ];
     let paths: Vec<PathBuf> = bins.iter().map(|(p, d, b)| binary(p, d, b)).collect();
     paths[0].parent().unwrap().to_path_buf()

@@ -23,8 +23,8 @@ use std::path::Path;
 use std::process::{Child, Command, Stdio};
 use std::time::Duration;
 
-use pednav_runtime::stats::ActorStats;
-use pednav_tests::run::{actor, bin_dir, curriculum, learner, stop, wait_for, wait_within};
+use pednav_runtime::stats::{ActorStats, BridgeStats};
+use pednav_tests::run::{actor, bin_dir, curriculum, learner, stats, stop, wait_for, wait_within};
 use pednav_tests::{scratch_dir, workspace_root};
 
 /// A free TCP port on loopback (bound, then released for the learner host to take).
@@ -82,10 +82,9 @@ fn pid_with(args: &[&str]) -> Option<i32> {
     })
 }
 
-/// The bridge's stats file of a run directory, as JSON.
-fn bridge_stats(run_dir: &Path) -> Option<serde_json::Value> {
-    let text = std::fs::read_to_string(run_dir.join("stats/bridge.json")).ok()?;
-    serde_json::from_str(&text).ok()
+/// The bridge's stats file of a run directory (`None` until it exists).
+fn bridge_stats(run_dir: &Path) -> Option<BridgeStats> {
+    stats(run_dir, "bridge")
 }
 
 /// The records the learner has taken of every stream (its stats file).
@@ -201,14 +200,14 @@ fn a_learner_host_and_an_actor_host_train_over_loopback() {
     let used = sent.last_policy_version.unwrap_or(0);
     assert!(used > 0 && used <= l.updates, "the remote actor used version {used} of {} updates", l.updates);
     let (lb, ab) = (bridge_stats(&learner_dir).unwrap(), bridge_stats(&actor_dir).unwrap());
-    assert!(lb["step_records"].as_u64().unwrap() >= sent.steps_sent, "{lb}");
-    assert!(lb["tasks"].as_u64().unwrap() >= 1 && lb["heartbeats"].as_u64().unwrap() >= 1, "{lb}");
-    assert!(ab["weights"].as_u64().unwrap() >= 1 && ab["ack_tables"].as_u64().unwrap() >= 1, "{ab}");
-    assert_eq!((lb["refused"].as_u64(), ab["refused"].as_u64()), (Some(0), Some(0)), "{lb} {ab}");
+    assert!(lb.step_records >= sent.steps_sent, "{lb:?}");
+    assert!(lb.tasks >= 1 && lb.heartbeats >= 1, "{lb:?}");
+    assert!(ab.weights >= 1 && ab.ack_tables >= 1, "{ab:?}");
+    assert_eq!((lb.refused, ab.refused), (0, 0), "{lb:?} {ab:?}");
     // The actor held its episode reports until the curriculum service acknowledged
     // them: the killed bridge lost none, and the curriculum took each once.
     check_reports_taken_once(&learner_dir, &sent);
-    assert!(ab["report_acks"].as_u64().unwrap() >= 1 && lb["episode_reports"].as_u64().unwrap() >= 1, "{lb} {ab}");
+    assert!(ab.report_acks >= 1 && lb.episode_reports >= 1, "{lb:?} {ab:?}");
 }
 
 #[test]
@@ -284,12 +283,12 @@ fn a_learner_host_and_an_actor_host_train_over_mutual_tls() {
     stop(&mut actor_host.0, &actor_dir);
     stop(&mut learner_host.0, &learner_dir);
     let (lb, ab) = (bridge_stats(&learner_dir).unwrap(), bridge_stats(&actor_dir).unwrap());
-    assert!(lb["step_records"].as_u64().unwrap() > 0 && ab["weights"].as_u64().unwrap() >= 1, "{lb} {ab}");
-    assert_eq!((lb["refused"].as_u64(), ab["refused"].as_u64()), (Some(0), Some(0)), "{lb} {ab}");
+    assert!(lb.step_records > 0 && ab.weights >= 1, "{lb:?} {ab:?}");
+    assert_eq!((lb.refused, ab.refused), (0, 0), "{lb:?} {ab:?}");
     // The link stayed up until the actor host stopped: zenoh's TLS link drops under
     // two-way traffic unless its reads and writes share a thread
     // (`pednav_bridge::link::TLS_SAFE_RUNTIME`).
-    assert_eq!(lb["hosts_gone"].as_u64(), Some(1), "the actor host left the TLS link only when it stopped: {lb}");
+    assert_eq!(lb.hosts_gone, 1, "the actor host left the TLS link only when it stopped: {lb:?}");
 }
 
 /// The bridge benchmark over mutual TLS — step records one way as fast as the link
@@ -478,7 +477,7 @@ fn hosts_in_two_network_namespaces_train_across_a_link_that_drops_and_comes_back
     std::thread::sleep(Duration::from_secs(15));
     ns.link(true);
     wait_for(&learner_dir, "the learner host seeing the actor host leave during the cut", || {
-        (bridge_stats(&learner_dir)?["hosts_gone"].as_u64()? >= 1).then_some(())
+        (bridge_stats(&learner_dir)?.hosts_gone >= 1).then_some(())
     });
     let after_cut = records_taken(&learner_dir).expect("learner stats");
     wait_for(&learner_dir, "remote records arriving again after the link came back", || {
@@ -489,8 +488,8 @@ fn hosts_in_two_network_namespaces_train_across_a_link_that_drops_and_comes_back
     stop(&mut learner_host.0, &learner_dir);
 
     let (lb, ab) = (bridge_stats(&learner_dir).unwrap(), bridge_stats(&actor_dir).unwrap());
-    assert!(lb["step_records"].as_u64().unwrap() >= sent.steps_sent, "{lb}");
-    assert_eq!((lb["refused"].as_u64(), ab["refused"].as_u64()), (Some(0), Some(0)), "{lb} {ab}");
+    assert!(lb.step_records >= sent.steps_sent, "{lb:?}");
+    assert_eq!((lb.refused, ab.refused), (0, 0), "{lb:?} {ab:?}");
     // The actor held its episode reports through the cut and sent them again; the
     // curriculum service took each once.
     check_reports_taken_once(&learner_dir, &sent);

@@ -183,6 +183,31 @@ fn a_bad_config_stops_before_any_process_starts() {
     std::fs::write(&bad, "[curriculum]\nvariant = \"navacl_sideways\"\n").unwrap();
     let err = refused_check(&bad);
     assert!(err.contains("variant") && err.contains("navacl_sideways"), "{err}");
+
+    // A warm start from a folder that holds no checkpoint, or other networks: refused
+    // before anything starts, naming the setting; from the same networks: valid.
+    let missing = root.join("no-checkpoint-here");
+    std::fs::write(&bad, format!("[dsac]\ninit_from = \"{}\"\n", missing.display())).unwrap();
+    let err = refused_launch(&bad, &run_dir, &[]);
+    assert!(err.contains("dsac.init_from") && err.contains("no-checkpoint-here"), "{err}");
+    let recipe = workspace_root().join("docs/results/pixel-recipe/recipe-s1/checkpoints/learner");
+    let smoke = workspace_root().join("deploy/configs/smoke.toml"); // N_h 4, 64 units: not the recipe's
+    let out = Command::new(bin_dir().join("pednav-run"))
+        .args(["check", smoke.to_str().unwrap(), "--set", &format!("dsac.init_from={}", recipe.display())])
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success() && err.contains("dsac.init_from") && err.contains("[nets]"), "{err}");
+    let out = Command::new(bin_dir().join("pednav-run"))
+        .args([
+            "check",
+            workspace_root().join("deploy/configs/cpu_reduced.toml").to_str().unwrap(),
+            "--set",
+            &format!("dsac.init_from={}", recipe.display()),
+        ])
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
 }
 
 /// A config whose replay cannot fit in this machine's memory (a terminal pool of

@@ -17,10 +17,7 @@ use pednav_runtime::messages::ProcessKind;
 
 use crate::exit_cause::ExitCause;
 
-/// A process that dies more than this many times within [`RESTART_WINDOW`] ends the run.
-pub(crate) const MAX_RESTARTS: usize = 5;
-/// The window of [`MAX_RESTARTS`].
-pub(crate) const RESTART_WINDOW: Duration = Duration::from_secs(120);
+use pednav_runtime::{MAX_RESTARTS, RESTART_WINDOW};
 
 /// One supervised child.
 pub(crate) struct Proc {

@@ -102,6 +102,66 @@ pub fn check_memory(cfg: &RunConfig, file: &str, plan: &MemoryPlan) -> Result<()
     Ok(())
 }
 
+/// `--actors` and `--envs` within what a run can have (no actors only when actor hosts
+/// join: `listening`).
+fn check_counts(actors: u32, envs: Option<usize>, listening: bool) -> Result<()> {
+    if let Some(m) = envs
+        && (m == 0 || m > 4096)
+    {
+        bail!("--envs must be 1 … 4096, got {m}");
+    }
+    if actors as usize > pednav_runtime::ipc::MAX_ACTORS || (actors == 0 && !listening) {
+        bail!(
+            "--actors must be 1 … {} (0 only with --listen, when actor hosts bring every actor), got {actors}",
+            pednav_runtime::ipc::MAX_ACTORS
+        );
+    }
+    Ok(())
+}
+
+/// A new run's `dsac.init_from`: a checkpoint folder whose networks are this run's —
+/// what the learner loads at its start, checked here so that a wrong folder stops the
+/// launch before any process starts (the learner verifies every file's checksum, name
+/// and shape as it loads them).
+pub fn check_init_from(cfg: &RunConfig) -> Result<()> {
+    /// The part of a checkpoint's state file that says which networks it holds.
+    #[derive(serde::Deserialize)]
+    struct Architecture {
+        nets: pednav_nets::NetsConfig,
+        #[serde(default)]
+        twin_critics: bool,
+    }
+    let Some(from) = &cfg.dsac.init_from else { return Ok(()) };
+    let state = from.join("state.json");
+    let text = std::fs::read_to_string(&state).with_context(|| {
+        format!(
+            "dsac.init_from = \"{}\": cannot read {} (give a run's checkpoints/learner folder, or a results \
+             folder's copy of it)",
+            from.display(),
+            state.display()
+        )
+    })?;
+    let found: Architecture = serde_json::from_str(&text)
+        .with_context(|| format!("dsac.init_from: {} is not a checkpoint's state file", state.display()))?;
+    if !found.nets.same_architecture(&cfg.nets) {
+        bail!(
+            "dsac.init_from = \"{}\": its networks {:?} are not this run's {:?} ([nets])",
+            from.display(),
+            found.nets,
+            cfg.nets
+        );
+    }
+    if found.twin_critics != cfg.dsac.twin_critics {
+        bail!(
+            "dsac.init_from = \"{}\": its twin_critics is {}, this run's {} (dsac.twin_critics)",
+            from.display(),
+            found.twin_critics,
+            cfg.dsac.twin_critics
+        );
+    }
+    Ok(())
+}
+
 impl Launch {
     /// Whether the link to actor hosts is mutual TLS.
     pub fn uses_tls(&self) -> bool {
@@ -125,17 +185,7 @@ pub fn launch(args: Launch) -> Result<()> {
         device,
         actor_device,
     } = args;
-    if let Some(m) = envs
-        && (m == 0 || m > 4096)
-    {
-        bail!("--envs must be 1 … 4096, got {m}");
-    }
-    if actors as usize > pednav_runtime::ipc::MAX_ACTORS || (actors == 0 && listen.is_empty()) {
-        bail!(
-            "--actors must be 1 … {} (0 only with --listen, when actor hosts bring every actor), got {actors}",
-            pednav_runtime::ipc::MAX_ACTORS
-        );
-    }
+    check_counts(actors, envs, !listen.is_empty())?;
     let tls = tls.files()?;
     if !listen.is_empty() {
         pednav_bridge::LinkConfig::listening(&listen).with_tls(tls.clone()).check()?;
@@ -150,6 +200,7 @@ pub fn launch(args: Launch) -> Result<()> {
             if let Some(s) = seed {
                 cfg.seed = s;
             }
+            check_init_from(&cfg)?;
             let dir = run_dir.unwrap_or_else(|| {
                 let stem = path.file_stem().map(|s| s.to_string_lossy().to_string()).unwrap_or("run".into());
                 let secs = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).unwrap().as_secs();

@@ -17,14 +17,10 @@
 //! launcher itself dies. `launch.rs` turns the flags into a prepared run,
 //! `supervisor.rs` keeps the processes alive.
 
-mod bench;
-mod bench_bridge;
 mod child;
 mod exit_cause;
 mod launch;
 mod multihost;
-mod relay;
-mod soak;
 mod supervisor;
 mod tls;
 
@@ -52,9 +48,14 @@ enum Cmd {
     /// (started by `launch --listen` and `join`; not for direct use).
     #[command(hide = true)]
     Bridge(multihost::Bridge),
-    /// Measure the runtime: step-stream throughput, weights latency, whole-system env steps/s.
-    #[command(subcommand)]
-    Bench(bench::Bench),
+    /// Measure the runtime and soak it with faults: runs `pednav-bench ARGS`, built
+    /// beside this binary (`pednav-run bench --help` lists its commands).
+    #[command(disable_help_flag = true)]
+    Bench {
+        /// The arguments of `pednav-bench`.
+        #[arg(trailing_var_arg = true, allow_hyphen_values = true)]
+        args: Vec<std::ffi::OsString>,
+    },
     /// Validate a config file, estimate the memory the run needs against this
     /// machine's (on stderr; refused when it cannot fit), and print the resolved config.
     Check {
@@ -89,7 +90,7 @@ impl Cmd {
             Cmd::Launch(a) => a.uses_tls(),
             Cmd::Join(a) => a.uses_tls(),
             Cmd::Bridge(a) => a.uses_tls(),
-            Cmd::Bench(b) => b.uses_tls(),
+            Cmd::Bench { .. } => false, // pednav-bench prepares its own
             Cmd::Check { .. } => false,
         }
     }
@@ -98,19 +99,14 @@ impl Cmd {
 fn run() -> Result<()> {
     let command = Cli::parse().command;
     // Before anything starts a thread (zenoh reads it once, at its first use).
-    let runtime_set = tls::prepare_zenoh_runtime(command.uses_tls());
+    let runtime_set = pednav_bridge::link::prepare_zenoh_runtime(command.uses_tls());
     pednav_runtime::init_logging();
-    if runtime_set {
-        tracing::info!(
-            "TLS link: {}='{}' (zenoh 1.10's TLS link needs its reads and writes on one thread; docs/multi-host.md, TLS)",
-            pednav_bridge::link::ZENOH_RUNTIME_ENV,
-            pednav_bridge::link::TLS_SAFE_RUNTIME
-        );
-    }
+    pednav_bridge::link::log_zenoh_runtime(runtime_set);
     match command {
-        Cmd::Bench(b) => bench::run(b),
+        Cmd::Bench { args } => run_bench(&args),
         Cmd::Check { config, actors, overrides } => {
             let cfg = RunConfig::load_with(&config, &overrides)?;
+            launch::check_init_from(&cfg)?;
             launch::check_devices(cfg.runtime.device, cfg.runtime.actor_device).with_context(|| {
                 format!("{}: the config is valid, but its devices cannot be used", config.display())
             })?;
@@ -123,4 +119,17 @@ fn run() -> Result<()> {
         Cmd::Join(args) => multihost::join(args),
         Cmd::Bridge(args) => multihost::bridge(args),
     }
+}
+
+/// `pednav-run bench ARGS`: replace this process with `pednav-bench ARGS` from this
+/// binary's folder (the measurements and soaks live there, not in the launcher).
+fn run_bench(args: &[std::ffi::OsString]) -> Result<()> {
+    use std::os::unix::process::CommandExt;
+    let exe = std::env::current_exe().context("locating pednav-run")?;
+    let bench = exe.parent().context("pednav-run has no folder")?.join("pednav-bench");
+    if !bench.exists() {
+        anyhow::bail!("{} not found (build it: cargo build --release -p pednav-bench)", bench.display());
+    }
+    let err = std::process::Command::new(&bench).args(args).exec();
+    Err(err).with_context(|| format!("starting {}", bench.display()))
 }

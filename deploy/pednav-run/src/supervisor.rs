@@ -3,8 +3,9 @@
 //! the bridge when the run spans hosts; restarts any of them that dies — the learner
 //! from its last checkpoint (refilling its replay as on a resume), the curriculum
 //! service from its saved state, an actor or a bridge afresh — within a budget of
-//! [`MAX_RESTARTS`] per [`RESTART_WINDOW`] each; a learner or curriculum service that
-//! stops sending heartbeats for `runtime.hang_secs` is treated as dead. It prints the
+//! [`pednav_runtime::MAX_RESTARTS`] per [`pednav_runtime::RESTART_WINDOW`] each; a
+//! learner or curriculum service that stops sending heartbeats for
+//! `runtime.hang_secs` is treated as dead. It prints the
 //! progress line from the heartbeats (an actor host sees the learner's through its
 //! bridge) and stops everything in order.
 //!
@@ -26,8 +27,6 @@ use pednav_runtime::messages::{Heartbeat, ProcessKind};
 use pednav_runtime::{Ipc, RestartRecord, RunConfig, RunDir, StopFlag, run_prefix};
 
 use crate::child::{Proc, stop_all};
-
-pub(crate) use crate::child::{MAX_RESTARTS, RESTART_WINDOW};
 
 /// A remote actor whose heartbeats stopped this long ago counts as dead on the progress line.
 const REMOTE_SILENCE: Duration = Duration::from_secs(10);

@@ -45,22 +45,6 @@ impl TlsArgs {
     }
 }
 
-/// Give this process (and the children it starts, which inherit its environment)
-/// zenoh's runtime layout for TLS links when `uses_tls` and the user set none:
-/// [`pednav_bridge::link::TLS_SAFE_RUNTIME`] says why. Whether it was set here.
-///
-/// Call it first thing in `main`, before any thread exists.
-pub fn prepare_zenoh_runtime(uses_tls: bool) -> bool {
-    use pednav_bridge::link::{TLS_SAFE_RUNTIME, ZENOH_RUNTIME_ENV};
-    if !uses_tls || std::env::var_os(ZENOH_RUNTIME_ENV).is_some() {
-        return false;
-    }
-    // SAFETY: `main` calls this before it starts logging, zenoh, rayon or any child:
-    // the process has one thread, so nothing reads the environment while it changes.
-    unsafe { std::env::set_var(ZENOH_RUNTIME_ENV, TLS_SAFE_RUNTIME) };
-    true
-}
-
 /// The flags that hand TLS files on to a bridge process.
 pub fn tls_flags(tls: Option<&TlsFiles>) -> Vec<String> {
     tls.map_or_else(Vec::new, |t| {

@@ -58,8 +58,8 @@ def arm_tables(runs, column):
     print(head.format("runs"))
     for arm, ss in per_arm.items():
         m = {k: statistics.fmean(s[k] for s in ss) for k in keys}
-        sd = {k: statistics.stdev(s[k] for s in ss) if len(ss) > 1 else float("nan") for k in keys}
-        pm = lambda k: f"{m[k]:.1f} ± {sd[k]:.1f}"
+        sd = {k: statistics.stdev(s[k] for s in ss) for k in keys} if len(ss) > 1 else None
+        pm = lambda k: f"{m[k]:.1f} ± {sd[k]:.1f}" if sd else f"{m[k]:.1f}"  # one run: no spread
         print(f"| {arm} | {len(ss)} | {pm('int')} | {pm('ext')} | {gap(m['int'], 'int'):.2f} / {gap(m['ext'], 'ext'):.2f} | "
               f"{pm('success')} % | {pm('hits')} | {pm('dontwalk')} | {pm('bumps')} | {pm('wait')} s |")
 

@@ -10,8 +10,8 @@ use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
+pub(crate) use pednav_runtime::stats::BridgeStats;
 use pednav_runtime::{Ipc, RunConfig, RunDir, StopFlag, run_prefix};
-use serde::Serialize;
 
 use crate::error::{BridgeError, Result};
 
@@ -129,29 +129,6 @@ impl Tally {
             hosts_gone: get(&self.hosts_gone),
         }
     }
-}
-
-/// What a bridge moved (see [`Tally`] for each field).
-#[derive(Debug, Clone, PartialEq, Eq, Serialize)]
-#[allow(missing_docs)]
-pub struct BridgeStats {
-    /// `learner-host` or `actor-host`.
-    pub role: String,
-    /// The host's name on the link.
-    pub host: String,
-    /// The run's name on the link.
-    pub run: String,
-    pub step_records: u64,
-    pub step_bytes: u64,
-    pub episode_reports: u64,
-    pub ack_tables: u64,
-    pub report_acks: u64,
-    pub weights: u64,
-    pub tasks: u64,
-    pub heartbeats: u64,
-    pub refused: u64,
-    pub not_delivered: u64,
-    pub hosts_gone: u64,
 }
 
 /// The run a bridge serves: its directory, resolved config and local services.

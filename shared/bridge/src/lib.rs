@@ -33,8 +33,9 @@ pub mod wire;
 
 pub use actor_host::{ActorHostOptions, run_actor_host};
 pub use error::{BridgeError, Result};
-pub use forward::{BridgeStats, LEARNER_HOST};
+pub use forward::LEARNER_HOST;
 pub use hosts::{HOSTS_FILE, Host, HostTable};
 pub use join::{JoinGrant, JoinRequest, request_join};
 pub use learner_host::{LearnerHostOptions, run_learner_host, run_name};
 pub use link::{Keys, LinkConfig, TlsFiles};
+pub use pednav_runtime::stats::BridgeStats;

@@ -220,6 +220,32 @@ pub const ZENOH_RUNTIME_ENV: &str = "ZENOH_RUNTIME";
 /// and keeps zenoh's default layout.
 pub const TLS_SAFE_RUNTIME: &str = "(rx: (handover: tx))";
 
+/// Give this process (and the children it starts, which inherit its environment)
+/// zenoh's runtime layout for TLS links when `uses_tls` and the user set none
+/// ([`TLS_SAFE_RUNTIME`] says why). Whether it was set here.
+///
+/// Call it first thing in `main`, before any thread exists.
+pub fn prepare_zenoh_runtime(uses_tls: bool) -> bool {
+    if !uses_tls || std::env::var_os(ZENOH_RUNTIME_ENV).is_some() {
+        return false;
+    }
+    // SAFETY: the binaries call this first in `main`, before they start logging,
+    // zenoh, rayon or any child: the process has one thread, so nothing reads the
+    // environment while it changes.
+    unsafe { std::env::set_var(ZENOH_RUNTIME_ENV, TLS_SAFE_RUNTIME) };
+    true
+}
+
+/// Say in the log that [`prepare_zenoh_runtime`] set the layout (`set`), once logging runs.
+pub fn log_zenoh_runtime(set: bool) {
+    if set {
+        tracing::info!(
+            "TLS link: {ZENOH_RUNTIME_ENV}='{TLS_SAFE_RUNTIME}' (zenoh 1.10's TLS link needs its reads and writes on \
+             one thread; docs/multi-host.md, TLS)"
+        );
+    }
+}
+
 /// Whether this process runs zenoh with a link's reads handed over to its write thread
 /// (a user's own [`ZENOH_RUNTIME_ENV`] may say more, as long as it says that).
 fn tls_runtime_is_safe() -> bool {

@@ -1,5 +1,7 @@
 //! DSAC settings (Table IV): the `[dsac]` section of every run's config file.
 
+use std::path::PathBuf;
+
 use serde::{Deserialize, Serialize};
 
 use crate::error::{ConfigError, Result};
@@ -82,6 +84,16 @@ pub struct DsacConfig {
     /// gradient teaches the encoder to tell states apart — what the pixel critic's
     /// features were measured to lack. The map steps with its own optimiser. Range: [0, 100].
     pub contrast_weight: f64,
+    /// Start a new run's networks from the online networks and temperature of this
+    /// checkpoint folder — a run's `checkpoints/learner`, or a results folder's copy of
+    /// it — instead of a fresh initialisation: a warm start, e.g. from a run without
+    /// traffic before training with it. The Polyak targets start as copies of the loaded
+    /// critics; the optimisers, the auxiliary heads, the counters and the replay start
+    /// fresh; the architecture (`[nets]`, `twin_critics`) must match the folder's. A
+    /// relative path is read from where `pednav-run` starts. Ignored when a run resumes
+    /// from its own checkpoint. Absent (the default): a fresh initialisation, as the paper.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub init_from: Option<PathBuf>,
 }
 
 impl Default for DsacConfig {
@@ -107,6 +119,7 @@ impl Default for DsacConfig {
             state_aux_weight: 0.0,
             n_step: 1,
             contrast_weight: 0.0,
+            init_from: None,
         }
     }
 }

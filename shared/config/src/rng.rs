@@ -5,7 +5,10 @@
 //! decides everything.
 //!
 //! Invariant: no two consumers share a stream of the same seed; every stream id and
-//! derivation of the run's seed used anywhere in pednav is defined in this module.
+//! derivation of the run's seed used anywhere in pednav is defined in this module. One
+//! level down, an episode's seed (drawn by its actor from the actor's seed) drives the
+//! simulator's streams of that episode — its traffic and its domain randomisation —
+//! which `pednav-sim` derives itself, as it has no run.
 
 /// `set_stream` ids of ChaCha generators seeded with the run's seed.
 pub mod stream {
@@ -51,6 +54,17 @@ pub fn untrained_reference_seed(run_seed: u64) -> u64 {
     run_seed.wrapping_add(1)
 }
 
+/// The seed of the candidate tasks a curriculum classification draws (`classify`:
+/// the maps of a run's curriculum snapshots): one fixed seed, not the run's, so that
+/// snapshots of any two runs are classified on the same candidates.
+pub const CLASSIFICATION_CANDIDATES: u64 = 1;
+
+/// The seed of a probe's example order over its epochs (`pednav_experiments::probe`),
+/// from the probe's own seed (which initialises its weights).
+pub fn probe_order_seed(probe_seed: u64) -> u64 {
+    probe_seed ^ 0x00c0_ffee
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -78,6 +92,7 @@ mod tests {
             actor_seed(seed, 1, 1),
             actor_seed(seed, 0, 2),
             untrained_reference_seed(seed),
+            probe_order_seed(seed),
         ];
         let distinct: std::collections::BTreeSet<u64> = derived.into_iter().chain([seed]).collect();
         assert_eq!(distinct.len(), derived.len() + 1);

@@ -9,7 +9,7 @@ use std::path::Path;
 use std::sync::OnceLock;
 
 use image::RgbImage;
-use pednav_curriculum::{CurriculumConfig, ServiceState, classify_region};
+use pednav_curriculum::{Curriculum, CurriculumConfig, ServiceState, classify_region};
 use pednav_sim::Scene;
 use pednav_sim::draw::draw_map;
 use plotters::coord::Shift;
@@ -316,7 +316,7 @@ pub fn curriculum_snapshots(
     let mut tiles = Vec::new();
     for p in &chosen {
         let state = ServiceState::load(p).map_err(|e| ExperimentError::file(p, e))?;
-        let mut c = pednav_curriculum::classify::restore(cfg, scene.clone(), dt, seed, &state)
+        let mut c = Curriculum::from_saved(cfg.clone(), scene.clone(), dt, seed, &state.curriculum)
             .map_err(|e| ExperimentError::file(p, e))?;
         let Some(class) = classify_region(&mut c, scene, cfg, 0.5).map_err(|e| ExperimentError::file(p, e))? else {
             return Err(ExperimentError::Plot("the fixed-start variant has no classification".into()));

@@ -233,7 +233,7 @@ pub fn train_and_test(
     }
     let net = Classifier::new(shape, cfg.seed)?;
     let mut opt = AdamW::new(&net.store, AdamWConfig::with_lr(cfg.lr))?;
-    let mut rng = ChaCha8Rng::seed_from_u64(cfg.seed ^ 0x00c0_ffee);
+    let mut rng = ChaCha8Rng::seed_from_u64(pednav_config::rng::probe_order_seed(cfg.seed));
     let mut order: Vec<usize> = (0..train.frames.len()).collect();
     let mut epoch_loss = Vec::with_capacity(cfg.epochs);
     let weights = class_weights(train.labels, shape.classes);

@@ -48,7 +48,7 @@ pub use error::{Result, RuntimeError};
 pub use ipc::{Ipc, run_prefix};
 pub use memory::{MemoryEstimate, MemoryPlan};
 pub use metrics::{AppendFile, Metrics, MetricsFailure, TbWriter};
-pub use rundir::{RestartRecord, RunDir};
+pub use rundir::{MAX_RESTARTS, RESTART_WINDOW, RestartRecord, RunDir};
 pub use signal::StopFlag;
 
 /// Set up `tracing` for a process: human-readable lines on stderr (the launcher

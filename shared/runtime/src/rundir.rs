@@ -187,6 +187,13 @@ impl RunDir {
     }
 }
 
+/// The launcher's restart budget: a process that dies more than this many times within
+/// [`RESTART_WINDOW`] ends the run (`pednav-run`'s supervisor keeps it; the soak plans
+/// its kills inside it).
+pub const MAX_RESTARTS: usize = 5;
+/// The window of [`MAX_RESTARTS`].
+pub const RESTART_WINDOW: std::time::Duration = std::time::Duration::from_secs(120);
+
 /// One restart the launcher made, as `restarts.jsonl` records it (written by the
 /// supervisor, read by the soak and by people): the contract between them is this type.
 #[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]

@@ -204,6 +204,41 @@ pub struct ReportsTaken {
     pub taken: u64,
 }
 
+/// What a bridge moved (`stats/bridge.json`, written by a host's bridge process every
+/// few seconds and when it stops; `pednav_bridge`'s `Tally` documents each counter).
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct BridgeStats {
+    /// `learner-host` or `actor-host`.
+    pub role: String,
+    /// The host's name on the link.
+    pub host: String,
+    /// The run's name on the link.
+    pub run: String,
+    /// Step records moved (put on the link, or published locally).
+    pub step_records: u64,
+    /// Their observation bytes.
+    pub step_bytes: u64,
+    /// Episode reports moved.
+    pub episode_reports: u64,
+    /// Acknowledgement tables of step records moved.
+    pub ack_tables: u64,
+    /// Acknowledgement tables of episode reports moved.
+    pub report_acks: u64,
+    /// Weights versions moved.
+    pub weights: u64,
+    /// Task requests answered across the link.
+    pub tasks: u64,
+    /// Heartbeats moved.
+    pub heartbeats: u64,
+    /// Messages refused.
+    pub refused: u64,
+    /// Records or reports not delivered (the actor still holds them).
+    pub not_delivered: u64,
+    /// Times a host's liveliness token was withdrawn.
+    pub hosts_gone: u64,
+}
+
 /// The curriculum service (written when it stops).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]

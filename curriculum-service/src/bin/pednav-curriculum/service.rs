@@ -474,7 +474,7 @@ pub fn load_curriculum(path: &Path, cfg: &RunConfig, scene: Scene) -> Result<(Cu
     }
     let (saved, read) = ServiceState::load_or_previous(path)?;
     let curriculum =
-        pednav_curriculum::classify::restore(&cfg.curriculum, scene, cfg.sim.dt, cfg.curriculum_seed(), &saved)
+        Curriculum::from_saved(cfg.curriculum.clone(), scene, cfg.sim.dt, cfg.curriculum_seed(), &saved.curriculum)
             .with_context(|| format!("restoring {}", read.display()))?;
     Ok((curriculum, Some(saved)))
 }

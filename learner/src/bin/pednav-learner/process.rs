@@ -14,7 +14,7 @@ use anyhow::{Context, Result};
 use candle_core::Device;
 use pednav_learner::{
     Dsac, DualReplay, Frame, FrameKind, RateLimiter, Step, UpdateStats, checkpoint_exists, load_checkpoint_or_previous,
-    save_checkpoint,
+    save_checkpoint, warm_start,
 };
 use pednav_runtime::columns::learner as col;
 use pednav_runtime::ipc::{
@@ -162,6 +162,62 @@ impl Interval {
     }
 }
 
+/// Where a learner process starts: the run's own checkpoint (a resume: weights,
+/// moments, counters, the sampler's RNG), `dsac.init_from` (a warm start: networks
+/// only) or a fresh initialisation, in that order.
+struct StartingPoint {
+    limiter: RateLimiter,
+    sample_rng: ChaCha8Rng,
+    /// Step records received over the run before this process.
+    received_total: u64,
+    /// The update count of the checkpoint resumed from.
+    resumed_from: Option<u64>,
+}
+
+impl StartingPoint {
+    /// Load `dsac` from where the run in `dir` starts and return the rest of that state.
+    fn of(dir: &RunDir, cfg: &RunConfig, dsac: &mut Dsac) -> Result<StartingPoint> {
+        let mut limiter = RateLimiter::new(cfg.dsac.warmup, cfg.dsac.train_interval, cfg.dsac.rate_slack);
+        let mut sample_rng = ChaCha8Rng::seed_from_u64(cfg.seed);
+        sample_rng.set_stream(pednav_config::rng::stream::BATCH_SAMPLER);
+        let mut resumed_from = None;
+        let mut received_total = 0u64;
+        let ckpt = dir.learner_checkpoint();
+        if checkpoint_exists(&ckpt) {
+            let (meta, loaded) = load_checkpoint_or_previous(&ckpt, dsac)
+                .with_context(|| format!("resuming from {}", ckpt.display()))?;
+            if let Some(l) = meta.limiter {
+                limiter = l;
+            }
+            let process: ProcessState = serde_json::from_value(meta.extra.clone()).with_context(|| {
+                format!(
+                    "{}: the learner process's state (`extra` in state.json: the batch sampler's RNG and the \
+                         steps received) is missing or damaged",
+                    loaded.display()
+                )
+            })?;
+            sample_rng = process.sample_rng;
+            received_total = process.received_total;
+            resumed_from = Some(dsac.updates);
+            tracing::info!(
+                updates = dsac.updates,
+                inserted = limiter.inserted,
+                from = %loaded.display(),
+                "resumed from checkpoint"
+            );
+        } else if let Some(from) = &cfg.dsac.init_from {
+            let meta = warm_start(from, dsac)
+                .with_context(|| format!("dsac.init_from: warm start from {}", from.display()))?;
+            tracing::info!(
+                from = %from.display(),
+                updates_there = meta.updates,
+                "warm start: online networks and temperature loaded, targets copied from them"
+            );
+        }
+        Ok(StartingPoint { limiter, sample_rng, received_total, resumed_from })
+    }
+}
+
 /// The learner process: the learner's state, its channels and its bookkeeping.
 pub struct LearnerProcess {
     cfg: RunConfig,
@@ -197,35 +253,8 @@ impl LearnerProcess {
     /// checkpoint when it has one — open its channels and publish the first weights.
     pub fn open(dir: RunDir, cfg: RunConfig, device: &Device, stop: StopFlag) -> Result<LearnerProcess> {
         let mut dsac = Dsac::new(&cfg.dsac, &cfg.nets, device, cfg.seed)?;
-        let mut limiter = RateLimiter::new(cfg.dsac.warmup, cfg.dsac.train_interval, cfg.dsac.rate_slack);
-        let mut sample_rng = ChaCha8Rng::seed_from_u64(cfg.seed);
-        sample_rng.set_stream(pednav_config::rng::stream::BATCH_SAMPLER);
-        let mut resumed_from = None;
-        let mut received_total = 0u64;
-        let ckpt = dir.learner_checkpoint();
-        if checkpoint_exists(&ckpt) {
-            let (meta, loaded) = load_checkpoint_or_previous(&ckpt, &mut dsac)
-                .with_context(|| format!("resuming from {}", ckpt.display()))?;
-            if let Some(l) = meta.limiter {
-                limiter = l;
-            }
-            let process: ProcessState = serde_json::from_value(meta.extra.clone()).with_context(|| {
-                format!(
-                    "{}: the learner process's state (`extra` in state.json: the batch sampler's RNG and the \
-                     steps received) is missing or damaged",
-                    loaded.display()
-                )
-            })?;
-            sample_rng = process.sample_rng;
-            received_total = process.received_total;
-            resumed_from = Some(dsac.updates);
-            tracing::info!(
-                updates = dsac.updates,
-                inserted = limiter.inserted,
-                from = %loaded.display(),
-                "resumed from checkpoint"
-            );
-        }
+        let StartingPoint { limiter, sample_rng, received_total, resumed_from } =
+            StartingPoint::of(&dir, &cfg, &mut dsac)?;
         let kind = cfg.frame_kind();
         let mut replay = DualReplay::new(&cfg.replay, kind, cfg.nets.history, device)?
             .with_n_step(cfg.dsac.n_step, cfg.dsac.gamma)?;

@@ -1,122 +1,47 @@
-//! `pednav-run bench …`: measurements of the runtime (figures go in the README).
-//!
-//! - `stream`: step-record throughput actor → learner through iceoryx2 (one
-//!   publisher process, one subscriber process, lossless settings of a run,
-//!   84×84 frames by default); records/s and GB/s.
-//! - `weights`: latency of a weights broadcast (the paper-size policy by default)
-//!   from the learner to 1 or more subscriber processes that poll as an actor
-//!   does between steps; median and p99.
-//! - `system`: env steps/s of a whole run (launcher, curriculum, learner, N actors)
-//!   with a random policy or with inference, the learner only inserting (warm-up
-//!   larger than the budget), so the figure is the actors' + IPC's + replay's.
-//! - `bridge`: the two bridges of a run across hosts over loopback
-//!   (`bench_bridge.rs`).
-//! - `soak`: a long smoke-config run whose learner, curriculum service and actors
-//!   are SIGKILLed at seeded random times (with `--across-hosts`, over two hosts on
-//!   this machine, their bridges too and the link cut); restarts, steps lost, whether
-//!   training continued (`soak/`; not in CI).
+//! The runtime's measurements within one host: `stream` (step-record throughput actor
+//! → learner through iceoryx2: one publisher process, one subscriber process, the
+//! lossless settings of a run, 84×84 frames by default; records/s and GB/s),
+//! `weights` (latency of a weights broadcast, the paper-size policy by default, from
+//! the learner to 1 or more subscriber processes that poll as an actor does between
+//! steps; median and p99) and `system` (env steps/s of a whole run — launcher,
+//! curriculum, learner, N actors — with a random policy or with inference, the
+//! learner only inserting, warm-up larger than the budget, so the figure is the
+//! actors' + IPC's + replay's).
 
 use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result, bail};
-use clap::Subcommand;
 use pednav_nets::{DsacNets, NetsConfig};
 use pednav_runtime::messages::{StepHeader, WeightsHeader};
 use pednav_runtime::{Ipc, StopFlag, now_ns, weights};
-
-#[derive(Subcommand)]
-pub enum Bench {
-    /// Step-record throughput between two processes.
-    Stream {
-        /// Records to send.
-        #[arg(long, default_value_t = 200_000)]
-        records: u64,
-        /// Frame side in pixels (record payload = side² bytes).
-        #[arg(long, default_value_t = 84)]
-        frame: usize,
-    },
-    /// Weights broadcast latency to N subscriber processes.
-    Weights {
-        /// Subscriber processes.
-        #[arg(long, default_value_t = 1)]
-        subscribers: usize,
-        /// Broadcasts to time.
-        #[arg(long, default_value_t = 200)]
-        repeats: usize,
-        /// Image size of the networks whose policy is broadcast (84: the paper's).
-        #[arg(long, default_value_t = 84)]
-        image_size: usize,
-    },
-    /// Whole-system env steps/s with 1 and 2 actors.
-    System {
-        /// Actor counts to measure.
-        #[arg(long, value_delimiter = ',', default_value = "1,2")]
-        actors: Vec<u32>,
-        /// Envs per actor.
-        #[arg(long, default_value_t = 16)]
-        envs: usize,
-        /// Env steps per measurement (the learner's budget).
-        #[arg(long, default_value_t = 40_000)]
-        steps: u64,
-        /// Also measure with policy inference (TCN, N_h 16, 84×84, streaming cache).
-        #[arg(long, default_value_t = true)]
-        inference: bool,
-    },
-    /// Soak: a smoke-config run (30 min by default; not in CI) whose learner, curriculum
-    /// service and actors are SIGKILLed at seeded random times (--across-hosts: a
-    /// learner host and an actor host on this machine, whose bridges are killed and
-    /// whose link is cut too); reports the launchers' restarts, whether training
-    /// continued after each kill, and steps lost between the actors and the learner
-    /// (Markdown on stdout, soak.json in the run directory).
-    Soak(crate::soak::Soak),
-    /// The bridges of a run across hosts, on loopback: step records/s, weights and
-    /// task latency, and records lost or duplicated across a cut link and a stalled
-    /// learner (about 2½ minutes with the defaults).
-    Bridge(crate::bench_bridge::BenchBridge),
-    /// (internal) publisher side of `stream`.
-    #[command(hide = true)]
-    StreamPublisher { prefix: String, records: u64, frame: usize },
-    /// (internal) subscriber side of `weights`.
-    #[command(hide = true)]
-    WeightsSubscriber { prefix: String, repeats: usize, ready: PathBuf },
-}
 
 fn prefix() -> String {
     format!("pnb{:x}_", std::process::id())
 }
 
 fn self_exe() -> Result<PathBuf> {
-    std::env::current_exe().context("locating pednav-run")
+    std::env::current_exe().context("locating pednav-bench")
 }
 
-impl Bench {
-    /// Whether the benchmark runs a link over mutual TLS.
-    pub fn uses_tls(&self) -> bool {
-        matches!(self, Bench::Bridge(b) if b.uses_tls())
+/// `name`, a binary built beside this one (`pednav-run` for `system`).
+pub(crate) fn sibling(name: &str) -> Result<PathBuf> {
+    let exe = self_exe()?;
+    let path = exe.parent().context("pednav-bench has no folder")?.join(name);
+    if !path.exists() {
+        bail!("{} not found (build it: cargo build --release -p {name})", path.display());
     }
+    Ok(path)
 }
 
-pub fn run(b: Bench) -> Result<()> {
-    match b {
-        Bench::Stream { records, frame } => stream(records, frame),
-        Bench::StreamPublisher { prefix, records, frame } => stream_publisher(&prefix, records, frame),
-        Bench::Weights { subscribers, repeats, image_size } => weights_latency(subscribers, repeats, image_size),
-        Bench::WeightsSubscriber { prefix, repeats, ready } => weights_subscriber(&prefix, repeats, &ready),
-        Bench::System { actors, envs, steps, inference } => system(&actors, envs, steps, inference),
-        Bench::Soak(args) => crate::soak::run(args),
-        Bench::Bridge(args) => crate::bench_bridge::run(args),
-    }
-}
-
-fn stream(records: u64, frame: usize) -> Result<()> {
+pub(crate) fn stream(records: u64, frame: usize) -> Result<()> {
     let stop = StopFlag::install();
     let prefix = prefix();
     let ipc = Ipc::new(&prefix, "bench-learner", 2048, Duration::from_secs(60), stop)?;
     let sub = ipc.step_subscriber()?;
     let mut child = Command::new(self_exe()?)
-        .args(["bench", "stream-publisher", &prefix, &records.to_string(), &frame.to_string()])
+        .args(["stream-publisher", &prefix, &records.to_string(), &frame.to_string()])
         .stdout(Stdio::null())
         .spawn()?;
     let bytes = frame * frame;
@@ -156,7 +81,7 @@ fn stream(records: u64, frame: usize) -> Result<()> {
     Ok(())
 }
 
-fn stream_publisher(prefix: &str, records: u64, frame: usize) -> Result<()> {
+pub(crate) fn stream_publisher(prefix: &str, records: u64, frame: usize) -> Result<()> {
     let stop = StopFlag::install();
     let ipc = Ipc::new(prefix, "bench-actor", 2048, Duration::from_secs(60), stop.clone())?;
     let out = ipc.step_sender(frame * frame)?;
@@ -172,7 +97,7 @@ fn stream_publisher(prefix: &str, records: u64, frame: usize) -> Result<()> {
     Ok(())
 }
 
-fn weights_latency(subscribers: usize, repeats: usize, image_size: usize) -> Result<()> {
+pub(crate) fn weights_latency(subscribers: usize, repeats: usize, image_size: usize) -> Result<()> {
     let stop = StopFlag::install();
     let prefix = prefix();
     let cfg = NetsConfig { image_size, ..NetsConfig::default() };
@@ -187,7 +112,7 @@ fn weights_latency(subscribers: usize, repeats: usize, image_size: usize) -> Res
         let ready = dir.join(format!("ready{k}"));
         children.push((
             Command::new(self_exe()?)
-                .args(["bench", "weights-subscriber", &prefix, &repeats.to_string(), ready.to_str().unwrap()])
+                .args(["weights-subscriber", &prefix, &repeats.to_string(), ready.to_str().unwrap()])
                 .stdout(Stdio::piped())
                 .spawn()?,
             ready,
@@ -233,7 +158,7 @@ fn weights_latency(subscribers: usize, repeats: usize, image_size: usize) -> Res
     Ok(())
 }
 
-fn weights_subscriber(prefix: &str, repeats: usize, ready: &Path) -> Result<()> {
+pub(crate) fn weights_subscriber(prefix: &str, repeats: usize, ready: &Path) -> Result<()> {
     let stop = StopFlag::install();
     let ipc = Ipc::new(prefix, &format!("bench-actor-{}", std::process::id()), 64, Duration::from_secs(60), stop)?;
     let sub = ipc.weights_subscriber()?;
@@ -263,8 +188,8 @@ fn weights_subscriber(prefix: &str, repeats: usize, ready: &Path) -> Result<()> 
     Ok(())
 }
 
-fn system(actors: &[u32], envs: usize, steps: u64, inference: bool) -> Result<()> {
-    let exe = self_exe()?;
+pub(crate) fn system(actors: &[u32], envs: usize, steps: u64, inference: bool) -> Result<()> {
+    let exe = sibling("pednav-run")?;
     let root = std::env::temp_dir().join(format!("pednav-bench-system-{}", std::process::id()));
     std::fs::create_dir_all(&root)?;
     let policies: &[&str] = if inference { &["random", "learned"] } else { &["random"] };

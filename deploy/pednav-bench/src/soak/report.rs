@@ -1,6 +1,8 @@
 //! The soak's report: the Markdown table, `soak.json` and the list of failures, built
 //! from the kills, the restarts and what the observer saw.
 
+use pednav_runtime::stats::BridgeStats;
+
 use super::*;
 
 /// Everything the report is made of.
@@ -433,27 +435,19 @@ impl Report<'_> {
         );
         // Across hosts: what each bridge moved (its `stats/bridge.json`, written by the
         // last bridge process of the host).
-        let bridges: BTreeMap<&str, Value> = if self.across_hosts {
+        let bridges: BTreeMap<&str, BridgeStats> = if self.across_hosts {
             [(Host::Learner, self.learner_dir), (Host::Actors, self.actor_dir)]
                 .into_iter()
-                .filter_map(|(h, d)| {
-                    let text = std::fs::read_to_string(d.join("stats/bridge.json")).ok()?;
-                    Some((h.label(), serde_json::from_str(&text).ok()?))
-                })
+                .filter_map(|(h, d)| Some((h.label(), read_stats::<BridgeStats>(&RunDir::new(d), "bridge")?)))
                 .collect()
         } else {
             BTreeMap::new()
         };
         for (host, b) in &bridges {
-            let n = |k: &str| b[k].as_u64().map_or("?".into(), |v| v.to_string());
             md += &format!(
                 "\nThe {host}'s last bridge: {} step records, {} episode reports, {} weights, {} hosts gone, {} \
                  refused.\n",
-                n("step_records"),
-                n("episode_reports"),
-                n("weights"),
-                n("hosts_gone"),
-                n("refused")
+                b.step_records, b.episode_reports, b.weights, b.hosts_gone, b.refused
             );
         }
         let passed = failures.is_empty();

@@ -105,9 +105,9 @@ pub use schedule::{Host, PlannedKill, Victim, kill_schedule, victim_kinds};
 
 /// The supervisor's restart budget: a process that dies more than this many times
 /// within [`SUPERVISOR_RESTART_WINDOW_SECS`] ends the run.
-const SUPERVISOR_MAX_RESTARTS: usize = crate::supervisor::MAX_RESTARTS;
+const SUPERVISOR_MAX_RESTARTS: usize = pednav_runtime::MAX_RESTARTS;
 /// The window of [`SUPERVISOR_MAX_RESTARTS`], in seconds.
-const SUPERVISOR_RESTART_WINDOW_SECS: f64 = crate::supervisor::RESTART_WINDOW.as_secs_f64();
+const SUPERVISOR_RESTART_WINDOW_SECS: f64 = pednav_runtime::RESTART_WINDOW.as_secs_f64();
 /// Kills the schedule may plan for one process within the supervisor's window: one
 /// below its budget, leaving room for a death the soak did not cause.
 pub const MAX_PLANNED_KILLS_PER_WINDOW: usize = SUPERVISOR_MAX_RESTARTS - 1;
@@ -249,8 +249,8 @@ fn resolve_config(path: &Path) -> Result<PathBuf> {
 
 /// Hard-link (or copy) this build's binaries into `bin`, so the run keeps them.
 fn snapshot_binaries(bin: &Path) -> Result<()> {
-    let exe = std::env::current_exe().context("locating pednav-run")?;
-    let from = exe.parent().context("pednav-run has no folder")?;
+    let exe = std::env::current_exe().context("locating pednav-bench")?;
+    let from = exe.parent().context("pednav-bench has no folder")?;
     std::fs::create_dir_all(bin)?;
     for b in BINARIES {
         let (src, dst) = (from.join(b), bin.join(b));
