@@ -99,10 +99,7 @@ fn main() -> std::process::ExitCode {
 
 fn run() -> Result<()> {
     let command = Cli::parse().command;
-    // Before anything starts a thread (zenoh reads it once, at its first use).
-    let runtime_set = pednav_bridge::link::prepare_zenoh_runtime(command.uses_tls());
-    pednav_runtime::init_logging();
-    pednav_bridge::link::log_zenoh_runtime(runtime_set);
+    pednav_bridge::link::start_process(command.uses_tls());
     match command {
         Cmd::Stream { records, frame } => runtime::stream(records, frame),
         Cmd::StreamPublisher { prefix, records, frame } => runtime::stream_publisher(&prefix, records, frame),

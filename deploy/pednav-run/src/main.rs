@@ -98,10 +98,7 @@ impl Cmd {
 
 fn run() -> Result<()> {
     let command = Cli::parse().command;
-    // Before anything starts a thread (zenoh reads it once, at its first use).
-    let runtime_set = pednav_bridge::link::prepare_zenoh_runtime(command.uses_tls());
-    pednav_runtime::init_logging();
-    pednav_bridge::link::log_zenoh_runtime(runtime_set);
+    pednav_bridge::link::start_process(command.uses_tls());
     match command {
         Cmd::Bench { args } => run_bench(&args),
         Cmd::Check { config, actors, overrides } => {

@@ -220,24 +220,21 @@ pub const ZENOH_RUNTIME_ENV: &str = "ZENOH_RUNTIME";
 /// and keeps zenoh's default layout.
 pub const TLS_SAFE_RUNTIME: &str = "(rx: (handover: tx))";
 
-/// Give this process (and the children it starts, which inherit its environment)
-/// zenoh's runtime layout for TLS links when `uses_tls` and the user set none
-/// ([`TLS_SAFE_RUNTIME`] says why). Whether it was set here.
+/// Start a process that may open zenoh links: give it (and the children it starts,
+/// which inherit its environment) zenoh's runtime layout for TLS links when `uses_tls`
+/// and the user set none ([`TLS_SAFE_RUNTIME`] says why), then start logging, and say
+/// so in the log when the layout was set here.
 ///
 /// Call it first thing in `main`, before any thread exists.
-pub fn prepare_zenoh_runtime(uses_tls: bool) -> bool {
-    if !uses_tls || std::env::var_os(ZENOH_RUNTIME_ENV).is_some() {
-        return false;
+pub fn start_process(uses_tls: bool) {
+    let set = uses_tls && std::env::var_os(ZENOH_RUNTIME_ENV).is_none();
+    if set {
+        // SAFETY: the binaries call this first in `main`, before they start logging,
+        // zenoh, rayon or any child: the process has one thread, so nothing reads the
+        // environment while it changes.
+        unsafe { std::env::set_var(ZENOH_RUNTIME_ENV, TLS_SAFE_RUNTIME) };
     }
-    // SAFETY: the binaries call this first in `main`, before they start logging,
-    // zenoh, rayon or any child: the process has one thread, so nothing reads the
-    // environment while it changes.
-    unsafe { std::env::set_var(ZENOH_RUNTIME_ENV, TLS_SAFE_RUNTIME) };
-    true
-}
-
-/// Say in the log that [`prepare_zenoh_runtime`] set the layout (`set`), once logging runs.
-pub fn log_zenoh_runtime(set: bool) {
+    pednav_runtime::init_logging();
     if set {
         tracing::info!(
             "TLS link: {ZENOH_RUNTIME_ENV}='{TLS_SAFE_RUNTIME}' (zenoh 1.10's TLS link needs its reads and writes on \
