@@ -2,13 +2,15 @@
 //! and the CPU preset's network configurations, with and without replay sampling,
 //! and the actor's policy step (full recompute vs streaming cache).
 //!
-//! `cargo bench -p pednav-learner --bench dsac_update [-- --quick] [-- --only a,c,act] [-- --json FILE] [-- --device cuda] [-- --state-aux W]`
+//! `cargo bench -p pednav-learner --bench dsac_update [-- --quick] [-- --only a,c,act] [-- --json FILE] [-- --device cuda] [-- --state-aux W] [-- --batch B] [-- --online-target]`
 //! (`--only` takes the update keys a–d, `d_twin` and `d_recipe` — (d) with twin critics,
 //! and with the temporal contrastive loss too, ours alone —, `d_recipe_bf16` (the recipe
 //! with bf16 convolutions, where the CPU has AVX-512 BF16) and `act` for the actor's
 //! policy step;
 //! `--state-aux W` turns on the state-prediction auxiliary loss with weight W, to
-//! measure its cost against a run without it)
+//! measure its cost against a run without it; `--batch B` runs every update case at
+//! batch size B instead of its own, without the PyTorch column; `--online-target` runs
+//! the shared-encoder cases with `dsac.target_encoder = "online"`)
 //!
 //! The custom kernels run on the instruction set [`Isa::active`] picks (the best of
 //! this CPU, or `PEDNAV_ISA=baseline|avx2|avx512`); the bench prints which. With
@@ -187,6 +189,9 @@ fn main() {
     let value_of = |flag: &str| args.iter().position(|a| a == flag).and_then(|i| args.get(i + 1)).cloned();
     let only: Option<Vec<String>> = value_of("--only").map(|v| v.split(',').map(String::from).collect());
     let json_path = value_of("--json");
+    let batch_override: Option<usize> =
+        value_of("--batch").map(|b| b.parse().unwrap_or_else(|e| panic!("--batch {b}: {e}")));
+    let online_target = args.iter().any(|a| a == "--online-target");
     let state_aux: f64 =
         value_of("--state-aux").map_or(Ok(0.0), |w| w.parse()).unwrap_or_else(|e| panic!("--state-aux: {e}"));
     let device_spec: pednav_nets::DeviceSpec =
@@ -214,7 +219,11 @@ fn main() {
     );
     println!("|---|---|---|---|---|---|");
     let mut rng = ChaCha8Rng::seed_from_u64(0);
-    for case in cases() {
+    for mut case in cases() {
+        if let Some(b) = batch_override {
+            case.batch = b;
+            case.pytorch_ms = None;
+        }
         if only.as_ref().is_some_and(|o| !o.iter().any(|k| k == case.key)) {
             continue;
         }
@@ -230,6 +239,11 @@ fn main() {
             twin_critics: case.twin,
             contrast_weight: case.contrast,
             state_aux_weight: state_aux,
+            target_encoder: if online_target && case.nets.shared_encoder {
+                pednav_config::dsac::TargetEncoder::Online
+            } else {
+                pednav_config::dsac::TargetEncoder::Polyak
+            },
             ..Default::default()
         };
         let mut dsac = Dsac::new(&cfg, &case.nets, &device, 0).unwrap();

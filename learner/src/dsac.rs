@@ -50,6 +50,7 @@ use rand_chacha::ChaCha8Rng;
 use crate::error::Result;
 use crate::replay::Batch;
 use pednav_config::DsacConfig;
+use pednav_config::dsac::TargetEncoder;
 
 /// Quantile Huber loss per sample (B): (1/N) Σᵢ Σⱼ wⱼ·|τ̂ᵢ − 1{δᵢⱼ < 0}|·H_κ(δᵢⱼ)/κ
 /// with δᵢⱼ = yⱼ − zᵢ; `pred` (B, N), `target` (B, N′), `taus` (B, N), `weights` (B, N′).
@@ -209,6 +210,14 @@ impl Dsac {
     /// Fresh networks and optimisers from `seed`.
     pub fn new(cfg: &DsacConfig, nets_cfg: &NetsConfig, device: &Device, seed: u64) -> Result<Dsac> {
         cfg.validate()?;
+        if cfg.target_encoder == TargetEncoder::Online && !nets_cfg.shared_encoder {
+            return Err(pednav_config::ConfigError::learner(
+                "target_encoder",
+                "\"online\"",
+                "reads the shared encoder's features: needs nets.shared_encoder = true",
+            )
+            .into());
+        }
         let nets = DsacNets::for_learner(nets_cfg, cfg, device, seed)?;
         let mut log_alpha = ParamStore::new(LOG_ALPHA, device);
         log_alpha.insert(LOG_ALPHA, Tensor::new(&[cfg.initial_alpha.ln() as f32], device)?)?;
@@ -312,6 +321,7 @@ impl Dsac {
             online: feats,
             next_policy: next_policy_features,
             next_fraction: next_fraction_features,
+            next_shared,
             obs,
             next_obs,
         } = nets.transition_features(&batch.transitions)?;
@@ -323,7 +333,13 @@ impl Dsac {
             let (a_next, logp_next) = (next.action.detach(), next.log_prob.detach());
             let next_fr = nets.fraction.fractions(&next_fraction_features.detach(), &a_next)?;
             let (next_hats, widths) = (next_fr.hats.detach(), next_fr.widths.detach());
-            let features = nets.target_features(&next_obs)?.detach();
+            // o_{t+n}'s features: the target net's own encoder, or the online one's
+            // (`target_encoder = "online"`, computed in the one pass above).
+            // (`Dsac::new` refuses "online" without a shared encoder.)
+            let features = match (c.target_encoder, &next_shared) {
+                (TargetEncoder::Online, Some(f)) => f.clone(),
+                _ => nets.target_features(&next_obs)?.detach(),
+            };
             let mut z_next = nets.target.grid(&features, &a_next)?.at(&next_hats)?.detach();
             if let Some(twin) = &nets.twin {
                 let f2 = features_of(&twin.target.encoder, &next_obs, Some(&features))?.detach();

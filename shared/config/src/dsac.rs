@@ -94,6 +94,26 @@ pub struct DsacConfig {
     /// from its own checkpoint. Absent (the default): a fresh initialisation, as the paper.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub init_from: Option<PathBuf>,
+    /// Which encoder reads o_{t+n} for the TD target (and for the contrastive loss's
+    /// positives). `"polyak"` (the default, as the paper's DSAC): the target quantile
+    /// net's own Polyak-averaged copy of the encoder, one more forward pass over the
+    /// batch's frames per update. `"online"`: the online encoder's o_{t+n} features,
+    /// detached — the one-pass encoding of each transition's N_h + n frames computes
+    /// them anyway — with only the heads after it Polyak-averaged, as DrQ-v2 (Yarats et
+    /// al., 2021) does; it saves that forward pass (≈ a quarter of the update's
+    /// convolution work on the CPU preset). Needs `nets.shared_encoder = true`.
+    pub target_encoder: TargetEncoder,
+}
+
+/// Which encoder computes the TD target's features ([`DsacConfig::target_encoder`]).
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum TargetEncoder {
+    /// The target quantile net's own Polyak-averaged encoder (the paper's DSAC).
+    #[default]
+    Polyak,
+    /// The online (shared) encoder's detached features; the target heads stay Polyak.
+    Online,
 }
 
 impl Default for DsacConfig {
@@ -120,6 +140,7 @@ impl Default for DsacConfig {
             n_step: 1,
             contrast_weight: 0.0,
             init_from: None,
+            target_encoder: TargetEncoder::Polyak,
         }
     }
 }

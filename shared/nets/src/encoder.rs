@@ -226,10 +226,10 @@ impl TcnEncoder {
     /// vector per window of N_h consecutive frames.
     fn encode_frames_steps(&self, frames: &Tensor) -> Result<Tensor> {
         let (b, t, h, w) = frames.dims4()?;
-        let mut x = frames.reshape((b, t, h, w, 1))?;
-        for layer in &self.frames {
-            x = layer.forward(&x)?;
-        }
+        // One op over the whole chain: its activations' gradients never pass through
+        // candle's gradient store (`ops::conv_chain`).
+        let links: Vec<_> = self.frames.iter().map(Conv::chain_link).collect();
+        let x = crate::ops::conv_chain(&frames.reshape((b, t, h, w, 1))?, &links)?;
         let steps = x.dims()[1];
         Ok(x.reshape((b, steps, ()))?)
     }

@@ -85,6 +85,11 @@ impl Conv {
         Ok(conv(x, self.w.as_tensor(), self.b.as_tensor(), spec)?)
     }
 
+    /// The layer's weight, bias and geometry, as [`crate::ops::conv_chain`] takes them.
+    pub fn chain_link(&self) -> (&Tensor, &Tensor, ConvSpec) {
+        (self.w.as_tensor(), self.b.as_tensor(), self.spec)
+    }
+
     /// The layer's geometry.
     pub fn spec(&self) -> ConvSpec {
         self.spec

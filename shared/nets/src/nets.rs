@@ -49,6 +49,10 @@ pub struct TransitionFeatures {
     pub next_policy: Tensor,
     /// o_{t+1}'s features for the fraction head (τ′).
     pub next_fraction: Tensor,
+    /// o_{t+1}'s features from the shared online encoder, detached (`None` where no
+    /// head shares the quantile net's encoder): what the TD target reads with
+    /// `dsac.target_encoder = "online"`.
+    pub next_shared: Option<Tensor>,
 }
 
 /// The second quantile net of twin critics and its Polyak target.
@@ -326,6 +330,7 @@ impl DsacNets {
             online: OnlineFeatures { policy, fraction, quantile },
             next_policy,
             next_fraction,
+            next_shared: shared_next.map(|n| n.detach()),
             obs,
             next_obs: next,
         })

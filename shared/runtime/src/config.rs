@@ -10,6 +10,7 @@
 
 use std::path::{Path, PathBuf};
 
+use pednav_config::dsac::TargetEncoder;
 use pednav_config::{CurriculumConfig, DsacConfig, FrameKind, ReplayConfig};
 use pednav_nets::{DeviceSpec, EncoderKind, NetsConfig};
 use pednav_sim::{ObsMode, STATE_OBS_DIM, Scene, SimConfig, state_obs_dim};
@@ -269,6 +270,13 @@ impl RunConfig {
                     );
                 }
             }
+        }
+        if self.dsac.target_encoder == TargetEncoder::Online && !self.nets.shared_encoder {
+            return bad(
+                "dsac.target_encoder",
+                "\"online\"".into(),
+                "reads the shared encoder's features: needs nets.shared_encoder = true (or target_encoder = \"polyak\")",
+            );
         }
         if self.dsac.builds_state_head() && self.nets.state_dim != dim {
             return bad(

@@ -48,10 +48,12 @@
 //! drivers and the candle op; [`geometry`] the sizes of a call and im2col/col2im,
 //! [`gemm_call`] the gemm calls, [`pool`] the per-thread scratch buffers,
 //! [`direct`] the direct kernels, [`bf16`] their mixed-precision variants and [`amx`]
-//! the bf16 forward and gradients on AMX tiles.
+//! the bf16 forward and gradients on AMX tiles; [`chain`] runs a chain of layers as one
+//! op with its own backward pass ([`conv_chain`]).
 
 mod amx;
 mod bf16;
+mod chain;
 mod direct;
 mod gemm_call;
 mod geometry;
@@ -65,6 +67,7 @@ use serde::{Deserialize, Serialize};
 use super::{Isa, cpu_f32, with_cpu_f32};
 pub use amx::{AMX_ENV, amx_available};
 pub use bf16::{bf16_available, cpu_has_bf16};
+pub use chain::conv_chain;
 use geometry::{Geometry, col2im_add, im2col};
 use pool::Pooled;
 

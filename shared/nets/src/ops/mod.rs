@@ -51,7 +51,7 @@ mod simd;
 use candle_core::{CpuStorage, Layout, Result, Storage, Tensor};
 use rayon::prelude::*;
 
-pub use conv::{ConvSpec, conv, conv_reference};
+pub use conv::{ConvSpec, conv, conv_chain, conv_reference};
 pub use isa::Isa;
 pub use linear::linear;
 

@@ -1,10 +1,11 @@
 //! One test binary for the networks crate (one link in CI), a module per subject: the
-//! convolution kernel, heads, networks and encoders, the streaming cache and AdamW.
+//! convolution kernel and its chain op, heads, networks and encoders, the streaming cache and AdamW.
 
 mod adamw;
 mod allocator;
 mod common;
 mod conv;
+mod conv_chain;
 mod encoders;
 mod heads;
 mod stream_cache;
