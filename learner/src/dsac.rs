@@ -52,6 +52,18 @@ use crate::replay::Batch;
 use pednav_config::DsacConfig;
 use pednav_config::dsac::TargetEncoder;
 
+/// o_{t+n}'s features for the TD target (detached): the target net's own encoder's, or
+/// with `target_encoder = "online"` the shared online encoder's from the update's one pass.
+fn td_features(nets: &DsacNets, mode: TargetEncoder, next_shared: Option<&Tensor>, next_obs: &Obs) -> Result<Tensor> {
+    match (mode, next_shared) {
+        (TargetEncoder::Online, Some(f)) => Ok(f.clone()),
+        (TargetEncoder::Online, None) => {
+            Err(pednav_config::ConfigError::learner("target_encoder", "\"online\"", "needs a shared encoder").into())
+        }
+        (TargetEncoder::Polyak, _) => Ok(nets.target_features(next_obs)?.detach()),
+    }
+}
+
 /// Quantile Huber loss per sample (B): (1/N) Σᵢ Σⱼ wⱼ·|τ̂ᵢ − 1{δᵢⱼ < 0}|·H_κ(δᵢⱼ)/κ
 /// with δᵢⱼ = yⱼ − zᵢ; `pred` (B, N), `target` (B, N′), `taus` (B, N), `weights` (B, N′).
 /// On the CPU, with no gradient wanted through `target`, `taus` or `weights` (the
@@ -152,7 +164,8 @@ struct TdTarget {
     values: Tensor,
     /// The target fractions' widths (B, N′), detached.
     widths: Tensor,
-    /// The target encoder's o_{t+n} features, detached (the contrastive positives).
+    /// o_{t+n}'s features the TD target read — the target encoder's, or the online one's
+    /// with `target_encoder = "online"` — detached (the contrastive positives).
     features: Tensor,
 }
 
@@ -210,14 +223,7 @@ impl Dsac {
     /// Fresh networks and optimisers from `seed`.
     pub fn new(cfg: &DsacConfig, nets_cfg: &NetsConfig, device: &Device, seed: u64) -> Result<Dsac> {
         cfg.validate()?;
-        if cfg.target_encoder == TargetEncoder::Online && !nets_cfg.shared_encoder {
-            return Err(pednav_config::ConfigError::learner(
-                "target_encoder",
-                "\"online\"",
-                "reads the shared encoder's features: needs nets.shared_encoder = true",
-            )
-            .into());
-        }
+        cfg.validate_with_encoder(nets_cfg.shared_encoder)?;
         let nets = DsacNets::for_learner(nets_cfg, cfg, device, seed)?;
         let mut log_alpha = ParamStore::new(LOG_ALPHA, device);
         log_alpha.insert(LOG_ALPHA, Tensor::new(&[cfg.initial_alpha.ln() as f32], device)?)?;
@@ -310,13 +316,11 @@ impl Dsac {
         let nets = &self.nets;
         let eta = &batch.weight;
         let log_alpha = self.log_alpha.vars()[0].1.as_tensor();
-        // Independent parts of the update run side by side on the pool, so that one
-        // part's serial element-wise work fills the other's waits; every tensor is
-        // computed by the same ops as in sequence.
+        // Independent parts side by side on the pool (one part's serial element-wise
+        // work fills the other's waits); every tensor from the same ops as in sequence.
         let split = split && dev.is_cpu();
 
-        // Encoders: o_t (with gradients) and o_{t+1} (for the TD target) in one pass
-        // over each transition's frames where the encoder allows it.
+        // Encoders: o_t and o_{t+1} in one pass over each transition's frames where they can.
         let TransitionFeatures {
             online: feats,
             next_policy: next_policy_features,
@@ -333,13 +337,7 @@ impl Dsac {
             let (a_next, logp_next) = (next.action.detach(), next.log_prob.detach());
             let next_fr = nets.fraction.fractions(&next_fraction_features.detach(), &a_next)?;
             let (next_hats, widths) = (next_fr.hats.detach(), next_fr.widths.detach());
-            // o_{t+n}'s features: the target net's own encoder, or the online one's
-            // (`target_encoder = "online"`, computed in the one pass above).
-            // (`Dsac::new` refuses "online" without a shared encoder.)
-            let features = match (c.target_encoder, &next_shared) {
-                (TargetEncoder::Online, Some(f)) => f.clone(),
-                _ => nets.target_features(&next_obs)?.detach(),
-            };
+            let features = td_features(nets, c.target_encoder, next_shared.as_ref(), &next_obs)?;
             let mut z_next = nets.target.grid(&features, &a_next)?.at(&next_hats)?.detach();
             if let Some(twin) = &nets.twin {
                 let f2 = features_of(&twin.target.encoder, &next_obs, Some(&features))?.detach();
@@ -411,7 +409,8 @@ impl Dsac {
         };
 
         // Temporal contrast (self-supervised): o_t's online features against the
-        // target encoder's o_{t+n} features of the batch.
+        // o_{t+n} features the TD target read (the target encoder's, or the online
+        // one's with `target_encoder = "online"`).
         let contrast_loss = match &nets.contrast_head {
             Some(head) => Some(head.info_nce(&feats.quantile, &td.features)?),
             None => None,
@@ -585,5 +584,48 @@ mod tests {
             let stores = |d: &Dsac| values(&d.nets.stores().into_iter().chain([&d.log_alpha]).collect::<Vec<_>>());
             assert_eq!(stores(&split), stores(&sequential));
         }
+    }
+
+    /// `target_encoder = "online"`: the TD target (and the contrastive positives) read
+    /// the shared online encoder's o_{t+1} features. At initialisation the target
+    /// encoder is a copy of the online one and the one-pass window's o_{t+1} features
+    /// equal a separate encoding, so the first update is the Polyak mode's bit for bit;
+    /// with the target encoder's weights moved, the Polyak mode's update changes and the
+    /// online mode's does not, while moving the target heads changes both. Without a
+    /// shared encoder the setting is refused.
+    #[test]
+    fn online_target_features_replace_the_target_encoders_pass() {
+        let polyak =
+            DsacConfig { batch_size: 16, warmup: 16, twin_critics: true, contrast_weight: 1.0, ..Default::default() };
+        let online = DsacConfig { target_encoder: TargetEncoder::Online, ..polyak.clone() };
+        let nets = NetsConfig { image_size: 42, history: 8, shared_encoder: true, ..Default::default() };
+        let kind = FrameKind::Pixels { size: 42 };
+        let rc = ReplayConfig { nonterminal_capacity: 200, terminal_capacity: 50 };
+        let mut replay = DualReplay::new(&rc, kind, nets.history, &Device::Cpu).unwrap();
+        let mut rng = ChaCha8Rng::seed_from_u64(4);
+        fill_replay(&mut replay, kind, 150, &mut rng).unwrap();
+        let batch = replay.sample(16, &mut rng).unwrap();
+        // One update after scaling the target quantile net's encoder weights (`Some(true)`)
+        // or its other weights (`Some(false)`) by 1.5.
+        let update = |cfg: &DsacConfig, moved: Option<bool>| {
+            let mut d = Dsac::new(cfg, &nets, &Device::Cpu, 5).unwrap();
+            if let Some(encoder) = moved {
+                for (name, var) in d.nets.target.store.vars() {
+                    if name.contains("enc.") == encoder {
+                        var.set(&(var.as_tensor() * 1.5).unwrap()).unwrap();
+                    }
+                }
+            }
+            let stats = d.update(&batch).unwrap();
+            assert!(!stats.skipped);
+            stats
+        };
+        assert_eq!(update(&online, None), update(&polyak, None), "fresh targets: both modes agree");
+        assert_ne!(update(&polyak, Some(true)), update(&polyak, None), "the Polyak mode reads the target encoder");
+        assert_eq!(update(&online, Some(true)), update(&online, None), "the online mode does not");
+        assert_ne!(update(&online, Some(false)), update(&online, None), "but it reads the target heads");
+        let separate = NetsConfig { shared_encoder: false, ..nets };
+        let e = Dsac::new(&online, &separate, &Device::Cpu, 5).err().expect("refused").to_string();
+        assert!(e.contains("target_encoder") && e.contains("shared_encoder"), "{e}");
     }
 }

@@ -76,9 +76,9 @@ pub struct DsacConfig {
     /// Weight λ_c of the temporal contrastive auxiliary loss (0: off, as the paper). A
     /// self-supervised loss that needs nothing privileged: ATC's augmented temporal
     /// contrast (Stooke et al., 2021) on the two views the update already has — the
-    /// online critic encoder's features of o_t (the anchor) and the Polyak target
-    /// encoder's features of o_{t+n} (the positive, computed for the TD target
-    /// anyway). A linear map of the anchor and the positive are L2-normalised; the
+    /// online critic encoder's features of o_t (the anchor) and the features of
+    /// o_{t+n} the TD target reads (the positive, computed for it anyway: the Polyak
+    /// target encoder's, or the online one's with `target_encoder = "online"`). A linear map of the anchor and the positive are L2-normalised; the
     /// InfoNCE loss over the batch (each anchor's positive against the batch's other
     /// positives, temperature 0.1) is added as λ_c·ℓ_c to the critic loss, so its
     /// gradient teaches the encoder to tell states apart — what the pixel critic's
@@ -100,8 +100,10 @@ pub struct DsacConfig {
     /// batch's frames per update. `"online"`: the online encoder's o_{t+n} features,
     /// detached — the one-pass encoding of each transition's N_h + n frames computes
     /// them anyway — with only the heads after it Polyak-averaged, as DrQ-v2 (Yarats et
-    /// al., 2021) does; it saves that forward pass (≈ a quarter of the update's
-    /// convolution work on the CPU preset). Needs `nets.shared_encoder = true`.
+    /// al., 2021) does; it saves that forward pass (by its FLOPs ≈ a quarter of the
+    /// encoder's convolution work; 13–15 % of the CPU preset's update, measured). The target net keeps its encoder's weights
+    /// (Polyak-averaged, unread), so checkpoints have one layout for both modes. Needs
+    /// `nets.shared_encoder = true`.
     pub target_encoder: TargetEncoder,
 }
 
@@ -216,6 +218,20 @@ impl DsacConfig {
                 "warmup",
                 self.warmup,
                 format!("must be at least batch_size ({})", self.batch_size),
+            ));
+        }
+        Ok(())
+    }
+
+    /// The rule across `[dsac]` and `[nets]`: `target_encoder = "online"` reads the
+    /// shared encoder's features, so it needs `nets.shared_encoder = true` (the launcher's
+    /// check and the learner both ask here).
+    pub fn validate_with_encoder(&self, shared_encoder: bool) -> Result<()> {
+        if self.target_encoder == TargetEncoder::Online && !shared_encoder {
+            return Err(ConfigError::learner(
+                "target_encoder",
+                "\"online\"",
+                "reads the shared encoder's features: needs nets.shared_encoder = true (or target_encoder = \"polyak\")",
             ));
         }
         Ok(())

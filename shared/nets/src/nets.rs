@@ -84,8 +84,8 @@ impl StateHead {
 
 /// The head of the temporal contrastive auxiliary loss (`dsac.contrast_weight`): a
 /// linear map of the online critic encoder's features of o_t, whose L2-normalised
-/// output is compared with the L2-normalised target-encoder features of o_{t+n} of
-/// every transition in the batch. Training only; acting never reads it.
+/// output is compared with the L2-normalised o_{t+n} features the TD target read
+/// (`dsac.target_encoder`) of every transition in the batch. Training only; acting never reads it.
 #[derive(Clone)]
 pub struct ContrastHead {
     /// Its parameters (`contrast_head.safetensors` in checkpoints).
@@ -101,7 +101,7 @@ impl ContrastHead {
     /// The InfoNCE loss (1/B) Σ_i [log Σ_j exp(s_ij) − s_ii] with s_ij = cos(W a_i + b,
     /// p_j) / [`ContrastHead::TEMPERATURE`]: row i's positive is p_i, the other rows'
     /// positives its negatives. `anchors` (B, F) carry the gradient to the encoder;
-    /// `positives` (B, F) should come detached (the Polyak target's features).
+    /// `positives` (B, F) should come detached (the features the TD target read).
     pub fn info_nce(&self, anchors: &Tensor, positives: &Tensor) -> Result<Tensor> {
         let q = l2_normalise(&self.layer.forward(anchors)?)?;
         let k = l2_normalise(positives)?;

@@ -10,7 +10,6 @@
 
 use std::path::{Path, PathBuf};
 
-use pednav_config::dsac::TargetEncoder;
 use pednav_config::{CurriculumConfig, DsacConfig, FrameKind, ReplayConfig};
 use pednav_nets::{DeviceSpec, EncoderKind, NetsConfig};
 use pednav_sim::{ObsMode, STATE_OBS_DIM, Scene, SimConfig, state_obs_dim};
@@ -223,8 +222,7 @@ impl RunConfig {
                 value: e.value,
                 message: e.message,
             })?;
-        // Length of the simulator's state vector (22, or 50 with traffic).
-        let dim = state_obs_dim(&self.sim);
+        let dim = state_obs_dim(&self.sim); // the simulator's state vector: 22, or 50 with traffic
         match self.sim.obs_mode {
             ObsMode::Pixels => {
                 if self.nets.encoder == EncoderKind::Mlp {
@@ -271,13 +269,7 @@ impl RunConfig {
                 }
             }
         }
-        if self.dsac.target_encoder == TargetEncoder::Online && !self.nets.shared_encoder {
-            return bad(
-                "dsac.target_encoder",
-                "\"online\"".into(),
-                "reads the shared encoder's features: needs nets.shared_encoder = true (or target_encoder = \"polyak\")",
-            );
-        }
+        self.dsac.validate_with_encoder(self.nets.shared_encoder).map_err(|e| section("dsac", e.to_string()))?;
         if self.dsac.builds_state_head() && self.nets.state_dim != dim {
             return bad(
                 "nets.state_dim",
@@ -533,6 +525,13 @@ mod tests {
         cfg.dsac.random_shift = 22;
         let e = cfg.validate("x").unwrap_err().to_string();
         assert!(e.contains("dsac.random_shift") && e.contains("21"), "{e}");
+        // The online encoder's target features exist only with a shared encoder.
+        let mut cfg = RunConfig::default();
+        cfg.dsac.target_encoder = pednav_config::dsac::TargetEncoder::Online;
+        let e = cfg.validate("x").unwrap_err().to_string();
+        assert!(e.contains("[dsac]") && e.contains("target_encoder") && e.contains("nets.shared_encoder"), "{e}");
+        cfg.nets.shared_encoder = true;
+        cfg.validate("x").unwrap();
     }
 
     /// Values that once passed `check` and then panicked a process or were taken

@@ -82,7 +82,7 @@ fn the_chain_equals_its_layers_one_by_one_bit_for_bit() {
                     assert_eq!(to_vec(g1.get(w).unwrap()), to_vec(g2.get(w).unwrap()), "{what}: layer {i} weight");
                     assert_eq!(to_vec(g1.get(b).unwrap()), to_vec(g2.get(b).unwrap()), "{what}: layer {i} bias");
                 }
-                assert_eq!(g1.get(&x).is_some(), input_grad, "{what}: input gradient present iff asked");
+                assert_eq!(g1.get(&x_in).is_some(), input_grad, "{what}: input gradient present iff asked");
                 if input_grad {
                     assert_eq!(to_vec(g1.get(&x).unwrap()), to_vec(g2.get(&x).unwrap()), "{what}: input gradient");
                 }

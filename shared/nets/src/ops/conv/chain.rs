@@ -19,7 +19,7 @@
 //! order (tested bit for bit on every instruction-set path, and against finite
 //! differences).
 
-use std::sync::Mutex;
+use std::sync::OnceLock;
 
 use candle_core::{CpuStorage, CustomOp2, Layout, Shape, Tensor};
 
@@ -61,9 +61,10 @@ struct ConvChainOp {
     /// Whether the forward pass keeps the activations for a backward pass (when the
     /// input or the parameters take part in a gradient).
     keep: bool,
-    /// The outputs of every layer but the last (the inputs of layers 1 …), written by
-    /// the forward pass when `keep`.
-    activations: Mutex<Vec<Vec<f32>>>,
+    /// The outputs of every layer but the last (the inputs of layers 1 …), set once by
+    /// the forward pass when `keep` and only read after it (by any number of backward
+    /// passes, concurrently, without a lock).
+    activations: OnceLock<Vec<Vec<f32>>>,
 }
 
 impl ConvChainOp {
@@ -93,12 +94,10 @@ impl ConvChainOp {
         dy: &[f32],
         need_dx: bool,
     ) -> candle_core::Result<(Option<Vec<f32>>, Vec<f32>)> {
-        let activations =
-            self.activations.lock().map_err(|_| candle_core::Error::Msg("conv chain: poisoned".into()))?;
         let last = self.layers.len() - 1;
-        if activations.len() != last {
+        let Some(activations) = self.activations.get().filter(|a| a.len() == last) else {
             candle_core::bail!("conv chain: backward without the forward pass's activations (it kept none)");
-        }
+        };
         let mut grads = vec![0f32; packed.len()];
         let mut upstream: Vec<f32> = Vec::new();
         let mut dx0 = None;
@@ -149,7 +148,9 @@ impl CustomOp2 for ConvChainOp {
                 kept.push(previous);
             }
         }
-        *self.activations.lock().map_err(|_| candle_core::Error::Msg("conv chain: poisoned".into()))? = kept;
+        if self.keep && self.activations.set(kept).is_err() {
+            candle_core::bail!("conv chain: one op ran its forward pass twice");
+        }
         let g = geometries.last().expect("a chain has layers");
         let y = current.expect("a chain has layers");
         Ok((CpuStorage::F32(y), Shape::from_dims(&[g.b, g.to, g.ho, g.wo, g.co])))
@@ -202,6 +203,6 @@ pub fn conv_chain(x: &Tensor, layers: &[(&Tensor, &Tensor, ConvSpec)]) -> candle
     }
     let packed = Tensor::cat(&parts, 0)?;
     let keep = packed.track_op() || x.track_op();
-    let op = ConvChainOp { layers: packed_layers, keep, activations: Mutex::new(Vec::new()) };
+    let op = ConvChainOp { layers: packed_layers, keep, activations: OnceLock::new() };
     x.contiguous()?.apply_op2(&packed, op)
 }
