@@ -11,8 +11,12 @@
 # the repository on first use (see ../shared/bench/torch_ref/bench.sh).
 set -euo pipefail
 cd "$(dirname "$0")/.."
-out="${1:-target/bench-learner}"
-shift || true
+# OUT_DIR is optional: a first argument that is "--" or a flag starts the bench's flags.
+out=target/bench-learner
+if [ $# -gt 0 ] && [ "${1#-}" = "$1" ]; then
+  out=$1
+  shift
+fi
 [ "${1:-}" = "--" ] && shift
 mkdir -p "$out"
 torch=../shared/bench/torch_ref/bench.sh
