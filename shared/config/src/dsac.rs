@@ -78,8 +78,9 @@ pub struct DsacConfig {
     /// contrast (Stooke et al., 2021) on the two views the update already has — the
     /// online critic encoder's features of o_t (the anchor) and the features of
     /// o_{t+n} the TD target reads (the positive, computed for it anyway: the Polyak
-    /// target encoder's, or the online one's with `target_encoder = "online"`). A linear map of the anchor and the positive are L2-normalised; the
-    /// InfoNCE loss over the batch (each anchor's positive against the batch's other
+    /// target encoder's, or the online one's with `target_encoder = "online"`). A
+    /// linear map of the anchor and the positive are L2-normalised; the InfoNCE loss
+    /// over the batch (each anchor's positive against the batch's other
     /// positives, temperature 0.1) is added as λ_c·ℓ_c to the critic loss, so its
     /// gradient teaches the encoder to tell states apart — what the pixel critic's
     /// features were measured to lack. The map steps with its own optimiser. Range: [0, 100].
@@ -101,9 +102,9 @@ pub struct DsacConfig {
     /// detached — the one-pass encoding of each transition's N_h + n frames computes
     /// them anyway — with only the heads after it Polyak-averaged, as DrQ-v2 (Yarats et
     /// al., 2021) does; it saves that forward pass (by its FLOPs ≈ a quarter of the
-    /// encoder's convolution work; 13–15 % of the CPU preset's update, measured). The target net keeps its encoder's weights
-    /// (Polyak-averaged, unread), so checkpoints have one layout for both modes. Needs
-    /// `nets.shared_encoder = true`.
+    /// encoder's convolution work; 13–15 % of the CPU preset's update, measured). The
+    /// target net keeps its encoder's weights (Polyak-averaged, unread), so checkpoints
+    /// have one layout for both modes. Needs `nets.shared_encoder = true`.
     pub target_encoder: TargetEncoder,
 }
 

@@ -85,7 +85,8 @@ impl StateHead {
 /// The head of the temporal contrastive auxiliary loss (`dsac.contrast_weight`): a
 /// linear map of the online critic encoder's features of o_t, whose L2-normalised
 /// output is compared with the L2-normalised o_{t+n} features the TD target read
-/// (`dsac.target_encoder`) of every transition in the batch. Training only; acting never reads it.
+/// (`dsac.target_encoder`) of every transition in the batch. Training only; acting
+/// never reads it.
 #[derive(Clone)]
 pub struct ContrastHead {
     /// Its parameters (`contrast_head.safetensors` in checkpoints).
