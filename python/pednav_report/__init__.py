@@ -10,6 +10,11 @@ a Welch t-test on seed means, Holm-adjusted over the pairs reported::
     python -m pednav_report --arm "A=runs/a-s*" --arm "B=runs/b-s1,runs/b-s2" \\
         --random docs/results/…/eval-random --oracle from-runs --out report/
 
+Two descriptive tables sit beside it, each a module with its own command:
+:mod:`pednav_report.safety` (the traffic folders' returns, success and safety counts
+per run and arm) and :mod:`pednav_report.first_task` (the first-task episodes per
+window of env steps, and when the gate opened).
+
 Pure Python: it does not import the simulator's extension (``pednav_gym``). The
 module docs of :mod:`pednav_report.data` define the normalised score and the tasks.
 """
