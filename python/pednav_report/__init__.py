@@ -11,29 +11,41 @@ a Welch t-test on seed means, Holm-adjusted over the pairs reported::
         --random docs/results/…/eval-random --oracle from-runs --out report/
 
 Two descriptive tables sit beside it, each a module with its own command:
-:mod:`pednav_report.safety` (the traffic folders' returns, success and safety counts
+:mod:`pednav_report.traffic` (the traffic folders' returns, success and safety counts
 per run and arm) and :mod:`pednav_report.first_task` (the first-task episodes per
 window of env steps, and when the gate opened).
 
-Pure Python: it does not import the simulator's extension (``pednav_gym``). The
-module docs of :mod:`pednav_report.data` define the normalised score and the tasks.
+Those two need only the standard library. Pure Python: nothing here imports the
+simulator's extension (``pednav_gym``). The module docs of :mod:`pednav_report.data`
+define the normalised score and the tasks.
 """
 
-from .data import AVERAGES, Arm, Reference, ReportError, load_reference, parse_arm, read_results, score_matrix
-from .stats import holm, iqm, optimality_gap, probability_of_improvement, welch
+from importlib import import_module
 
-__all__ = [
-    "AVERAGES",
-    "Arm",
-    "Reference",
-    "ReportError",
-    "holm",
-    "iqm",
-    "load_reference",
-    "optimality_gap",
-    "parse_arm",
-    "probability_of_improvement",
-    "read_results",
-    "score_matrix",
-    "welch",
-]
+from .common import AVERAGES, ReportError
+
+#: Names served from the modules that need NumPy, SciPy and rliable, imported on first
+#: use so that ``pednav_report.traffic`` and ``pednav_report.first_task`` run with the
+#: standard library alone.
+_LAZY = {
+    "Arm": "data",
+    "Reference": "data",
+    "load_reference": "data",
+    "parse_arm": "data",
+    "read_results": "data",
+    "score_matrix": "data",
+    "holm": "stats",
+    "iqm": "stats",
+    "optimality_gap": "stats",
+    "probability_of_improvement": "stats",
+    "welch": "stats",
+}
+
+
+def __getattr__(name: str):
+    if name in _LAZY:
+        return getattr(import_module(f".{_LAZY[name]}", __name__), name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
+__all__ = ["AVERAGES", "ReportError", *_LAZY]

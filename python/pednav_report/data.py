@@ -27,7 +27,6 @@ points 8–13.
 from __future__ import annotations
 
 import csv
-import glob
 import math
 from collections import defaultdict
 from dataclasses import dataclass, field
@@ -35,20 +34,12 @@ from pathlib import Path
 
 import numpy as np
 
-#: The Table III averages: name → validation points (``protocol::INTERIOR`` is 0..8).
-AVERAGES: dict[str, tuple[int, ...]] = {"Int": tuple(range(8)), "Ext": tuple(range(8, 14))}
-
-#: Where a run directory keeps its validation-protocol results.
-DEFAULT_RESULTS = "eval/learned/results.csv"
+from .common import AVERAGES, DEFAULT_RESULTS, ReportError, expand, run_name, split_named
 
 #: Two ``table.csv`` oracle columns (written with 4 decimals) agree within this.
 ORACLE_TOLERANCE = 5e-4
 
 Pose = tuple[int, float]
-
-
-class ReportError(ValueError):
-    """An input the report cannot use; the message names the file."""
 
 
 def yaw_key(value: str | float) -> float:
@@ -126,14 +117,6 @@ def read_results(path: Path, name: str | None = None) -> RunResults:
         successes={k: np.asarray(v, dtype=bool) for k, v in successes.items()},
         scene_oracle=scene_oracle or None,
     )
-
-
-def run_name(path: Path) -> str:
-    """A run's label: the run directory's name (``…/<run>/eval/learned/results.csv``)."""
-    parts = Path(path).parts
-    if len(parts) >= 4 and parts[-3] == "eval":
-        return parts[-4]
-    return Path(path).parent.name or str(path)
 
 
 def read_table(path: Path) -> dict[str, dict[int, float]]:
@@ -280,31 +263,6 @@ def scene_warnings(runs: list[RunResults], refs: list[Reference]) -> list[str]:
     return out
 
 
-def expand(spec: str, results: str = DEFAULT_RESULTS) -> list[Path]:
-    """The results.csv files of an arm: comma-separated paths or globs, each a
-    ``results.csv``, a directory holding one, or a run directory (``<dir>/<results>``)."""
-    out: list[Path] = []
-    for part in (s.strip() for s in spec.split(",")):
-        if not part:
-            continue
-        matches = sorted(glob.glob(part)) if glob.has_magic(part) else [part]
-        if not matches:
-            raise ReportError(f"{part}: matches nothing")
-        for m in matches:
-            p = Path(m)
-            if p.is_file():
-                out.append(p)
-            elif (p / "results.csv").is_file():
-                out.append(p / "results.csv")
-            elif (p / results).is_file():
-                out.append(p / results)
-            else:
-                raise ReportError(f"{m}: no results.csv (nor {results}) here")
-    if not out:
-        raise ReportError(f"`{spec}`: no runs")
-    return out
-
-
 @dataclass
 class Arm:
     """A variant: its runs (one per seed)."""
@@ -315,16 +273,14 @@ class Arm:
 
 def parse_arm(text: str, results: str = DEFAULT_RESULTS) -> Arm:
     """``NAME=SPEC`` (see :func:`expand`)."""
-    name, sep, spec = text.partition("=")
-    if not sep or not name.strip():
-        raise ReportError(f"--arm `{text}`: expected NAME=PATH[,PATH…] (paths may be globs)")
+    name, spec = split_named(text, "--arm", "PATH[,PATH…] (paths may be globs)")
     paths = expand(spec, results)
     runs = [read_results(p) for p in paths]
     names = [r.name for r in runs]
     if len(set(names)) != len(names):  # fall back to the full path where names repeat
         for r in runs:
             r.name = str(r.path)
-    return Arm(name.strip(), runs)
+    return Arm(name, runs)
 
 
 def task_poses(arms: list[Arm], points: tuple[int, ...]) -> list[Pose]:

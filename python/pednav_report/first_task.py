@@ -15,8 +15,9 @@
   episode of another category (it follows the episode that opened the gate).
 
 ``--budget N`` counts only episodes that ended by env step N (runs cut at a common
-budget); the windows then end at N unless ``--until`` says otherwise. It replaces the
-scripts three results folders each carried.
+budget); the windows then end at N unless ``--until`` says otherwise. A row counts the
+episodes that ended in [start, end) of its label; the last row's end, ``--until``, is
+included. Standard library only.
 """
 
 from __future__ import annotations
@@ -29,7 +30,7 @@ import sys
 from dataclasses import dataclass
 from pathlib import Path
 
-from .data import ReportError
+from .common import ReportError, split_named
 
 #: The PassFirstTask statistic's window, in episodes.
 GATE_EPISODES = 30
@@ -52,11 +53,12 @@ class RunEpisodes:
 
 
 def read_run(name: str, run: Path, budget: int | None) -> RunEpisodes:
+    """A run's first-task episodes that ended by ``budget`` and when its gate opened."""
     path = Path(run) / "metrics" / "episodes.csv"
     try:
         with path.open(newline="") as f:
             rows = list(csv.DictReader(f))
-    except OSError as e:
+    except (OSError, UnicodeDecodeError, csv.Error) as e:
         raise ReportError(f"{path}: {e} (is {run} a run directory?)") from e
     first, other_at = [], None
     for line, row in enumerate(rows, start=2):
@@ -71,16 +73,22 @@ def read_run(name: str, run: Path, budget: int | None) -> RunEpisodes:
         except (KeyError, TypeError, ValueError) as e:
             raise ReportError(f"{path}: line {line}: cannot read {row} ({e})") from e
     stats = Path(run) / "stats" / "curriculum.json"
-    passed = json.loads(stats.read_text()).get("first_task_passed") if stats.is_file() else None
-    if passed:
-        gate = f"{passed['decision_steps']:,}"
+    try:
+        passed = json.loads(stats.read_text()).get("first_task_passed") if stats.is_file() else None
+        gate_step = int(passed["decision_steps"]) if passed else None
+    except (OSError, UnicodeDecodeError, ValueError, TypeError, KeyError, AttributeError) as e:
+        raise ReportError(f"{stats}: cannot read first_task_passed.decision_steps ({e!r})") from e
+    if gate_step is not None:
+        gate = f"{gate_step:,}"
     else:
         gate = f"≤ {other_at:,}" if other_at is not None else "not opened"
     return RunEpisodes(name, first, gate)
 
 
-def window_cell(episodes: list[FirstTaskEpisode], lo: int, hi: int) -> str:
-    w = [e for e in episodes if lo <= e.env_steps < hi]
+def window_cell(episodes: list[FirstTaskEpisode], lo: int, hi: int, last: bool) -> str:
+    """Mean return (count, success) of the episodes that ended in [lo, hi), or [lo, hi]
+    for the last row."""
+    w = [e for e in episodes if lo <= e.env_steps < hi or (last and e.env_steps == hi)]
     if not w:
         return "—"
     ret = statistics.mean(e.discounted_return for e in w)
@@ -89,6 +97,7 @@ def window_cell(episodes: list[FirstTaskEpisode], lo: int, hi: int) -> str:
 
 
 def best_window(episodes: list[FirstTaskEpisode]) -> str:
+    """The best mean over 30 consecutive first-task episodes (the PassFirstTask statistic)."""
     r = [e.discounted_return for e in episodes]
     if len(r) < GATE_EPISODES:
         return "—"
@@ -96,10 +105,12 @@ def best_window(episodes: list[FirstTaskEpisode]) -> str:
 
 
 def table(runs: list[RunEpisodes], window: int, until: int, gate: bool) -> str:
+    """The markdown table, a column per run."""
     lines = ["| env steps | " + " | ".join(r.name for r in runs) + " |", "|---|" + "---|" * len(runs)]
     for lo in range(0, until, window):
-        cells = [window_cell(r.first, lo, lo + window) for r in runs]
-        lines.append(f"| {lo // 1000}–{min(lo + window, until) // 1000} k | " + " | ".join(cells) + " |")
+        hi = min(lo + window, until)
+        cells = [window_cell(r.first, lo, hi, hi == until) for r in runs]
+        lines.append(f"| {lo // 1000}–{hi // 1000} k | " + " | ".join(cells) + " |")
     lines.append("| best 30-episode mean | " + " | ".join(best_window(r.first) for r in runs) + " |")
     if gate:
         lines.append("| gate opened by (env steps) | " + " | ".join(r.gate for r in runs) + " |")
@@ -129,9 +140,7 @@ def main(argv: list[str] | None = None) -> int:
                 raise ReportError(f"--{flag} {value}: must be a positive number of env steps")
         runs = []
         for spec in args.runs:
-            name, sep, run = spec.partition("=")
-            if not sep or not name or not run:
-                raise ReportError(f"`{spec}`: expected NAME=RUN_DIR")
+            name, run = split_named(spec, "run", "RUN_DIR")
             runs.append(read_run(name, Path(run), args.budget))
     except ReportError as e:
         print(f"error: {e}", file=sys.stderr)

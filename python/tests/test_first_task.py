@@ -58,6 +58,14 @@ def test_budget_drops_later_episodes(tmp_path: Path, capsys: pytest.CaptureFixtu
     assert capsys.readouterr().out.splitlines()[3] == "| 25–25 k | — |"
 
 
+def test_the_last_row_ends_at_until_inclusive(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    # Windows of 25 k up to 30 k: an episode at 40,000 is past the last row (25-30 k);
+    # one at exactly 30,000 is its end, counted.
+    a = run_dir(tmp_path, "a", ["first,26000,-2,1", "first,30000,-4,1", "first,40000,-100,0"])
+    assert main([f"A={a}", "--until", "30000"]) == 0
+    assert capsys.readouterr().out.splitlines()[3] == "| 25–30 k | -3.0 (2, 100 %) |"
+
+
 def test_bad_input_is_named(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     assert main([f"A={tmp_path}"]) == 2
     assert "episodes.csv" in capsys.readouterr().err
@@ -67,6 +75,11 @@ def test_bad_input_is_named(tmp_path: Path, capsys: pytest.CaptureFixture[str]) 
     assert main(["no-equals-sign"]) == 2
     assert main([f"A={bad}", "--window", "0"]) == 2
     assert "--window" in capsys.readouterr().err
+    broken = run_dir(tmp_path, "broken", ["first,1,-1,1"])
+    (broken / "stats").mkdir()
+    (broken / "stats" / "curriculum.json").write_text("{not json")
+    assert main([f"A={broken}", "--gate"]) == 2
+    assert "curriculum.json" in capsys.readouterr().err
 
 
 COMMANDS = [
@@ -88,6 +101,4 @@ def test_every_first_task_table_recomputes(
     if command.output is not None:
         assert (ROOT / command.output).read_text() == out
     else:
-        text = readme.read_text()
-        for line in out.splitlines():
-            assert line in text, f"{readme}: a line of the command's table is not in the README:\n{line}"
+        assert out.strip() in readme.read_text(), f"{readme}: the command's table is not in the README:\n{out}"
