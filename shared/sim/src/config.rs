@@ -102,6 +102,11 @@ pub struct SimConfig {
     /// Overrides the scene's share of drivers who do not yield at zebras. Range: [0, 1].
     #[serde(skip_serializing_if = "Option::is_none")]
     pub traffic_non_yielding: Option<f32>,
+    /// Overrides the scene's reward for stepping onto a zebra that does not show WALK
+    /// (`rewards.dont_walk_entry`, 0 in the built-in scenes), paid once per entry beside
+    /// the road's pay for every step on that zebra. Range: [-1000, 0].
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub traffic_dont_walk_entry: Option<f32>,
 }
 
 impl Default for SimConfig {
@@ -123,6 +128,7 @@ impl Default for SimConfig {
             traffic_flow: None,
             traffic_walkers: None,
             traffic_non_yielding: None,
+            traffic_dont_walk_entry: None,
         }
     }
 }
@@ -186,6 +192,9 @@ impl SimConfig {
         if let Some(n) = self.traffic_non_yielding {
             check((0.0..=1.0).contains(&n), "traffic_non_yielding", n, "must lie in [0, 1]")?;
         }
+        if let Some(r) = self.traffic_dont_walk_entry {
+            check((-1000.0..=0.0).contains(&r), "traffic_dont_walk_entry", r, "must lie in [-1000, 0]")?;
+        }
         Ok(())
     }
 }
@@ -226,7 +235,7 @@ mod tests {
     /// is accepted.
     #[test]
     fn values_outside_the_documented_ranges_are_refused_naming_the_field() {
-        let refused: [(&str, fn(&mut SimConfig)); 12] = [
+        let refused: [(&str, fn(&mut SimConfig)); 14] = [
             ("dt", |c| c.dt = 0.0),
             ("dt", |c| c.dt = f32::NAN),
             ("t_max", |c| c.t_max = 0),
@@ -239,6 +248,8 @@ mod tests {
             ("traffic_flow", |c| c.traffic_flow = Some(f32::NAN)),
             ("traffic_walkers", |c| c.traffic_walkers = Some(65)),
             ("traffic_non_yielding", |c| c.traffic_non_yielding = Some(1.5)),
+            ("traffic_dont_walk_entry", |c| c.traffic_dont_walk_entry = Some(1.0)),
+            ("traffic_dont_walk_entry", |c| c.traffic_dont_walk_entry = Some(f32::NAN)),
         ];
         for (field, set) in refused {
             let mut cfg = SimConfig::default();
@@ -248,12 +259,13 @@ mod tests {
                 other => panic!("{field}: {other:?}"),
             }
         }
-        let accepted: [fn(&mut SimConfig); 5] = [
+        let accepted: [fn(&mut SimConfig); 6] = [
             |c| c.dt = 5.0,
             |c| c.t_max = MAX_T_MAX,
             |c| c.max_head_yaw_deg = 90.0,
             |c| c.traffic_flow = Some(2400.0),
             |c| c.traffic_walkers = Some(64),
+            |c| c.traffic_dont_walk_entry = Some(-1000.0),
         ];
         for set in accepted {
             let mut cfg = SimConfig::default();

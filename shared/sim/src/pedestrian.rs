@@ -20,7 +20,8 @@
 //! as for a wall); advances the traffic by `dt` (a moving vehicle that reaches the
 //! agent is a hit: the scene's `vehicle_hit` reward and the episode ends,
 //! terminated); pays a zebra entered outside WALK at the road's rate for as long as
-//! the agent stays on it (walking on the road against the signal); and records the
+//! the agent stays on it (walking on the road against the signal), plus the run's
+//! `dont_walk_entry` reward once on the step it steps on (0 unless set); and records the
 //! step's [`SafetyEvents`]. The invariant above then holds with the episode's
 //! [`TrafficState`] as part of the state.
 
@@ -171,6 +172,9 @@ impl Pedestrian {
         let mut reward = world.scene.rewards().step_reward(paid, cmd.speed, collided);
         if vehicle_hit {
             reward += traffic.vehicle_hit;
+        }
+        if dont_walk_entry {
+            reward += state.settings.dont_walk_entry;
         }
         let moved = (p[0] - from[0]).hypot(p[1] - from[1]);
         let safety = SafetyEvents {

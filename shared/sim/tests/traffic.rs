@@ -234,6 +234,33 @@ fn stepping_onto_a_zebra_outside_walk_is_paid_as_the_road_and_counted() {
 }
 
 #[test]
+fn the_dont_walk_entry_reward_is_paid_once_on_the_step_onto_the_zebra() {
+    let cfg = SimConfig {
+        traffic: TrafficLevel::Light,
+        traffic_dont_walk_entry: Some(-100.0),
+        obs_mode: ObsMode::State,
+        ..SimConfig::default()
+    };
+    let w = Arc::new(SimWorld::new(Scene::reference(), cfg).unwrap());
+    assert_eq!(w.traffic.as_ref().unwrap().0.dont_walk_entry, 0.0, "the built-in scene's own reward is 0");
+    let rewards = w.scene.rewards().clone();
+    let road = |t: &pednav_sim::Transition| rewards.step_reward(pednav_sim::RegionKind::Road, 2.0, t.collided);
+    let mut env = VecEnv::new(w.clone(), 1, BackendChoice::Auto).unwrap();
+    let kerb = Pose::from_degrees(13.0, -5.3, 90.0);
+    reset_showing(&mut env, kerb, PedestrianSignal::DontWalk);
+    let onto = env.step(&[[1.0, 0.0, 0.0]]).unwrap()[0];
+    assert!(onto.safety.dont_walk_entry);
+    assert_eq!(onto.reward, road(&onto) - 100.0, "the road's pay and the entry reward");
+    let on = env.step(&[[1.0, 0.0, 0.0]]).unwrap()[0];
+    assert_eq!(on.region, pednav_sim::RegionKind::Zebra);
+    assert!(!on.safety.dont_walk_entry && on.safety.against_signal);
+    assert_eq!(on.reward, road(&on), "the next step on the zebra pays the road alone");
+    reset_showing(&mut env, kerb, PedestrianSignal::Walk);
+    let lawful = env.step(&[[1.0, 0.0, 0.0]]).unwrap()[0];
+    assert_eq!(lawful.reward, rewards.step_reward(pednav_sim::RegionKind::Zebra, 2.0, lawful.collided));
+}
+
+#[test]
 fn a_vehicle_that_drives_into_the_agent_ends_the_episode_with_the_hit_penalty() {
     // Nobody yields, heavy flow; the agent stands in the eastbound lane inside the crossing box.
     let cfg = SimConfig {

@@ -198,6 +198,8 @@ pub struct TrafficSettings {
     pub walkers: u32,
     /// Share of drivers who do not yield.
     pub non_yielding: f32,
+    /// Reward on entering a zebra outside WALK.
+    pub dont_walk_entry: f32,
 }
 
 /// The validated traffic description of a scene; see the module docs.
@@ -225,6 +227,9 @@ pub struct Traffic {
     pub extra_poles: Vec<[f32; 2]>,
     /// Reward added on a vehicle hit.
     pub vehicle_hit: f32,
+    /// Reward added on entering a zebra outside WALK (the scene's; `sim.traffic_dont_walk_entry`
+    /// overrides it, [`Traffic::settings`]).
+    pub dont_walk_entry: f32,
     /// Sub-steps per decision step.
     pub substeps: u32,
     /// Warm-up before an episode, seconds.
@@ -245,6 +250,7 @@ impl Traffic {
             flow: cfg.traffic_flow.unwrap_or(level.flow),
             walkers: cfg.traffic_walkers.unwrap_or(level.walkers),
             non_yielding: cfg.traffic_non_yielding.unwrap_or(self.driver.non_yielding_share),
+            dont_walk_entry: cfg.traffic_dont_walk_entry.unwrap_or(self.dont_walk_entry),
         })
     }
 

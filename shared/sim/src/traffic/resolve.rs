@@ -461,6 +461,10 @@ impl Traffic {
         if !(spec.rewards.vehicle_hit.is_finite() && spec.rewards.vehicle_hit <= 0.0) {
             return Err(bad("rewards.vehicle_hit", format!("{} must be finite and ≤ 0", spec.rewards.vehicle_hit)));
         }
+        if !(spec.rewards.dont_walk_entry.is_finite() && (-1000.0..=0.0).contains(&spec.rewards.dont_walk_entry)) {
+            let v = spec.rewards.dont_walk_entry;
+            return Err(bad("rewards.dont_walk_entry", format!("{v} must lie in [-1000, 0]")));
+        }
         if !(1..=16).contains(&spec.substeps) {
             return Err(bad("substeps", format!("{} must lie in [1, 16]", spec.substeps)));
         }
@@ -479,6 +483,7 @@ impl Traffic {
             heads,
             extra_poles: spec.extra_poles.clone(),
             vehicle_hit: spec.rewards.vehicle_hit,
+            dont_walk_entry: spec.rewards.dont_walk_entry,
             substeps: spec.substeps,
             warmup_s: spec.warmup_s,
         })

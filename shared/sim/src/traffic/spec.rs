@@ -223,4 +223,9 @@ pub struct HeadSpec {
 pub struct TrafficRewards {
     /// Added on the step a vehicle hits the agent; the episode ends there.
     pub vehicle_hit: f32,
+    /// Added once on the step the agent steps onto a zebra that does not show WALK,
+    /// beside the road's pay for every step on it (docs/simulator.md, *Traffic*).
+    /// Default 0: the crossing against the signal costs only the road's pay.
+    #[serde(default)]
+    pub dont_walk_entry: f32,
 }
