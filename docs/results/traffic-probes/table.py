@@ -11,6 +11,7 @@ print("|---|---|---|---|---|---|---|")
 for run in sorted(p.parent for p in here.glob("*/traffic-probe.json")):
     j = json.loads((run / "traffic-probe.json").read_text())
     frames = f"{j['image_size']}²" + (f", {j['supersample']}×{j['supersample']} samples" if j.get("supersample", 1) > 1 else "")
+    frames += f", {j['fov_deg']:g}° lens" if j.get("fov_deg", 135.0) != 135.0 else ""
     for key, name in probes:
         r = j["probes"].get(key)
         if r is None:
