@@ -61,6 +61,8 @@ fn every_traffic_field_is_range_checked_with_its_name() {
         ("{ a = 4, b = 5, crossing = 0 }", "{ a = 4, b = 13, crossing = 0 }", "traffic.walkers.edges[16]"),
         ("[7.0, -7.0], [7.0, 7.0]", "[7.0, -2.0], [7.0, 7.0]", "traffic.walkers.nodes[0]"),
         ("vehicle_hit = -300.0", "vehicle_hit = 5.0", "traffic.rewards.vehicle_hit"),
+        ("vehicle_hit = -300.0", "vehicle_hit = -300.0\ndont_walk_entry = 1.0", "traffic.rewards.dont_walk_entry"),
+        ("vehicle_hit = -300.0", "vehicle_hit = -300.0\ndont_walk_entry = nan", "traffic.rewards.dont_walk_entry"),
         ("facing_deg = 90.0, zebra = 0", "facing_deg = 45.0, zebra = 0", "traffic.heads[0].facing_deg"),
         ("pole = [10.4, -5.6], facing_deg = 90.0", "pole = [11.4, -5.6], facing_deg = 90.0", "traffic.heads[0].pole"),
         ("substeps = 2", "substeps = 0", "traffic.substeps"),

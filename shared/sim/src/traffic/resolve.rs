@@ -6,6 +6,7 @@
 //! Invariant: nothing downstream re-checks what this module accepted (see the
 //! parent module's invariant).
 
+use super::spec::TrafficRewards;
 use super::{
     Head, HeadKind, Lane, MIN_WALK_S, MUTCD_WALKING_SPEED, SignalPlan, Traffic, TrafficSpec, VehicleKind,
     WalkerNetwork, Zebra, signal,
@@ -31,6 +32,17 @@ fn segments_cross(a: [f32; 2], b: [f32; 2], c: [f32; 2], d: [f32; 2]) -> Option<
     let t = (q[0] * s[1] - q[1] * s[0]) / den;
     let u = (q[0] * r[1] - q[1] * r[0]) / den;
     ((0.0..=1.0).contains(&t) && (0.0..=1.0).contains(&u)).then(|| [a[0] + t * r[0], a[1] + t * r[1]])
+}
+
+/// The traffic rewards' ranges: `Err((field, message))` for the first out of range.
+fn check_rewards(r: &TrafficRewards) -> std::result::Result<(), (&'static str, String)> {
+    if !(r.vehicle_hit.is_finite() && r.vehicle_hit <= 0.0) {
+        return Err(("rewards.vehicle_hit", format!("{} must be finite and ≤ 0", r.vehicle_hit)));
+    }
+    if !(-1000.0..=0.0).contains(&r.dont_walk_entry) {
+        return Err(("rewards.dont_walk_entry", format!("{} must lie in [-1000, 0]", r.dont_walk_entry)));
+    }
+    Ok(())
 }
 
 impl Traffic {
@@ -458,13 +470,7 @@ impl Traffic {
             heads.push(Head { center: [h.pole[0] + 0.25 * facing[0], h.pole[1] + 0.25 * facing[1]], facing, kind });
         }
 
-        if !(spec.rewards.vehicle_hit.is_finite() && spec.rewards.vehicle_hit <= 0.0) {
-            return Err(bad("rewards.vehicle_hit", format!("{} must be finite and ≤ 0", spec.rewards.vehicle_hit)));
-        }
-        if !(spec.rewards.dont_walk_entry.is_finite() && (-1000.0..=0.0).contains(&spec.rewards.dont_walk_entry)) {
-            let v = spec.rewards.dont_walk_entry;
-            return Err(bad("rewards.dont_walk_entry", format!("{v} must lie in [-1000, 0]")));
-        }
+        check_rewards(&spec.rewards).map_err(|(field, message)| bad(field, message))?;
         if !(1..=16).contains(&spec.substeps) {
             return Err(bad("substeps", format!("{} must lie in [1, 16]", spec.substeps)));
         }
