@@ -193,7 +193,9 @@ impl SimConfig {
             check((0.0..=1.0).contains(&n), "traffic_non_yielding", n, "must lie in [0, 1]")?;
         }
         if let Some(r) = self.traffic_dont_walk_entry {
-            check((-1000.0..=0.0).contains(&r), "traffic_dont_walk_entry", r, "must lie in [-1000, 0]")?;
+            if let Err(m) = check_dont_walk_entry(r) {
+                return Err(SimError::Config { field: "traffic_dont_walk_entry", value: r.to_string(), message: m });
+            }
         }
         Ok(())
     }
@@ -211,6 +213,12 @@ pub(crate) fn check_level(flow: f32, walkers: u32) -> std::result::Result<(), (&
         return Err(("walkers", format!("{walkers} must be at most 64")));
     }
     Ok(())
+}
+
+/// Range check of the reward for entering a zebra outside WALK (the scene's
+/// `traffic.rewards.dont_walk_entry` and the run's override): the message on failure.
+pub(crate) fn check_dont_walk_entry(reward: f32) -> std::result::Result<(), String> {
+    if (-1000.0..=0.0).contains(&reward) { Ok(()) } else { Err(format!("{reward} must lie in [-1000, 0]")) }
 }
 
 #[cfg(test)]

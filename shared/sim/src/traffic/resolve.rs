@@ -11,7 +11,7 @@ use super::{
     Head, HeadKind, Lane, MIN_WALK_S, MUTCD_WALKING_SPEED, SignalPlan, Traffic, TrafficSpec, VehicleKind,
     WalkerNetwork, Zebra, signal,
 };
-use crate::config::check_level;
+use crate::config::{check_dont_walk_entry, check_level};
 use crate::error::Result;
 use crate::geometry::{Axis, Polygon, Rect, invalid};
 use crate::region_kind::RegionKind;
@@ -39,10 +39,7 @@ fn check_rewards(r: &TrafficRewards) -> std::result::Result<(), (&'static str, S
     if !(r.vehicle_hit.is_finite() && r.vehicle_hit <= 0.0) {
         return Err(("rewards.vehicle_hit", format!("{} must be finite and ≤ 0", r.vehicle_hit)));
     }
-    if !(-1000.0..=0.0).contains(&r.dont_walk_entry) {
-        return Err(("rewards.dont_walk_entry", format!("{} must lie in [-1000, 0]", r.dont_walk_entry)));
-    }
-    Ok(())
+    check_dont_walk_entry(r.dont_walk_entry).map_err(|m| ("rewards.dont_walk_entry", m))
 }
 
 impl Traffic {
