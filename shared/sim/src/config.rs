@@ -53,6 +53,33 @@ impl TrafficLevel {
     }
 }
 
+/// Pedestrian signals set in the ground, lit with the zebra's heads (an option beyond
+/// the paper, for a camera that cannot resolve the heads: their lamps are a quarter of
+/// a pixel at 42², docs/simulator.md). Each is a flat band of lights, bright on WALK,
+/// dim while the head's hand is lit (a red lamp through a greyscale camera) and dark
+/// between the hand's flashes.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize, clap::ValueEnum)]
+#[serde(rename_all = "snake_case")]
+pub enum GroundSignals {
+    /// None: the heads on their poles only (the default; every figure before the option).
+    #[default]
+    Off,
+    /// A band in the paving behind the kerb stones at both ends of every zebra, as
+    /// wide as the zebra and 0.5 m deep, as Seoul's floor-type pedestrian signals and
+    /// Augsburg's "Bodenampeln" show the signal at a waiting walker's feet.
+    Kerb,
+    /// A 0.2 m line along both sides of every zebra from kerb to kerb, as LED-lit
+    /// crossings light a crossing's edges: seen from anywhere short of the kerb.
+    Edges,
+}
+
+impl GroundSignals {
+    /// Are any ground signals drawn?
+    pub fn is_on(self) -> bool {
+        self != GroundSignals::Off
+    }
+}
+
 /// Settings of the pedestrian simulator. Defaults are the paper's (§IV) and docs/design.md §3.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
@@ -107,6 +134,11 @@ pub struct SimConfig {
     /// the road's pay for every step on that zebra. Range: [-1000, 0].
     #[serde(skip_serializing_if = "Option::is_none")]
     pub traffic_dont_walk_entry: Option<f32>,
+    /// Pedestrian signals set in the ground (an option beyond the paper): `"off"`
+    /// (default), `"kerb"` (a band behind each kerb) or `"edges"` (lines along each
+    /// zebra's sides); see [`GroundSignals`]. Needs traffic.
+    #[serde(skip_serializing_if = "is_off")]
+    pub traffic_ground_signals: GroundSignals,
 }
 
 impl Default for SimConfig {
@@ -129,6 +161,7 @@ impl Default for SimConfig {
             traffic_walkers: None,
             traffic_non_yielding: None,
             traffic_dont_walk_entry: None,
+            traffic_ground_signals: GroundSignals::Off,
         }
     }
 }
@@ -197,8 +230,18 @@ impl SimConfig {
                 return Err(SimError::Config { field: "traffic_dont_walk_entry", value: r.to_string(), message: m });
             }
         }
+        check(
+            !self.traffic_ground_signals.is_on() || self.traffic.is_on(),
+            "traffic_ground_signals",
+            format!("{:?}", self.traffic_ground_signals).to_lowercase(),
+            "needs traffic (sim.traffic = \"light\", \"medium\" or \"heavy\"): the lights show the signal plan, which runs only with traffic",
+        )?;
         Ok(())
     }
+}
+
+fn is_off(g: &GroundSignals) -> bool {
+    !g.is_on()
 }
 
 /// Range check of a level's numbers: (field, message) on failure.
@@ -243,7 +286,7 @@ mod tests {
     /// is accepted.
     #[test]
     fn values_outside_the_documented_ranges_are_refused_naming_the_field() {
-        let refused: [(&str, fn(&mut SimConfig)); 14] = [
+        let refused: [(&str, fn(&mut SimConfig)); 15] = [
             ("dt", |c| c.dt = 0.0),
             ("dt", |c| c.dt = f32::NAN),
             ("t_max", |c| c.t_max = 0),
@@ -258,6 +301,7 @@ mod tests {
             ("traffic_non_yielding", |c| c.traffic_non_yielding = Some(1.5)),
             ("traffic_dont_walk_entry", |c| c.traffic_dont_walk_entry = Some(1.0)),
             ("traffic_dont_walk_entry", |c| c.traffic_dont_walk_entry = Some(f32::NAN)),
+            ("traffic_ground_signals", |c| c.traffic_ground_signals = GroundSignals::Edges),
         ];
         for (field, set) in refused {
             let mut cfg = SimConfig::default();
@@ -267,13 +311,17 @@ mod tests {
                 other => panic!("{field}: {other:?}"),
             }
         }
-        let accepted: [fn(&mut SimConfig); 6] = [
+        let accepted: [fn(&mut SimConfig); 7] = [
             |c| c.dt = 5.0,
             |c| c.t_max = MAX_T_MAX,
             |c| c.max_head_yaw_deg = 90.0,
             |c| c.traffic_flow = Some(2400.0),
             |c| c.traffic_walkers = Some(64),
             |c| c.traffic_dont_walk_entry = Some(-1000.0),
+            |c| {
+                c.traffic = TrafficLevel::Light;
+                c.traffic_ground_signals = GroundSignals::Kerb;
+            },
         ];
         for set in accepted {
             let mut cfg = SimConfig::default();

@@ -41,7 +41,8 @@ use crate::render::{
 use crate::scene::{Pose, RegionKind};
 use crate::state_obs::{STATE_OBS_MAX, state_obs_dim, state_observation};
 use crate::traffic::{
-    HeadKind, PEDESTRIAN_HEAD, SafetyEvents, TrafficStart, TrafficState, VEHICLE_HEAD, VehicleSignal, VehicleStyle,
+    HeadKind, PEDESTRIAN_HEAD, PedestrianSignal, SafetyEvents, TrafficStart, TrafficState, VEHICLE_HEAD, VehicleSignal,
+    VehicleStyle,
 };
 use crate::world::SimWorld;
 
@@ -245,7 +246,7 @@ impl VecEnv {
                     let s = traffic.plan.pedestrian(z, state.t);
                     let [stand_z, walk_z] = PEDESTRIAN_HEAD.2;
                     let stand = if s.stand_lit(state.t) { LIT } else { DARK };
-                    let walk = if s == crate::traffic::PedestrianSignal::Walk { LIT } else { DARK };
+                    let walk = if s == PedestrianSignal::Walk { LIT } else { DARK };
                     self.batch.push(
                         Prototype::FigureStand,
                         Instance { pose: [x, y, stand_z, yaw], size: [1.0, 0.3, 0.3, stand] },
@@ -268,6 +269,35 @@ impl VecEnv {
         }
     }
 
+    /// The pedestrian signals in the ground that environment `env`'s camera `c` can
+    /// see (`sim.traffic_ground_signals`), into the batch's open view: each band follows
+    /// its zebra's heads — bright on WALK, dim while the hand is lit, dark between
+    /// its flashes.
+    fn add_ground_signals(&mut self, env: usize, c: &CameraView, fov: f32) {
+        const WALK: f32 = 0.97;
+        const HAND: f32 = 0.35;
+        const DARK: f32 = 0.1;
+        /// Above the ground, metres: clear of its depth, under a pixel at any distance.
+        const LIFT: f32 = 0.02;
+        let (Some((traffic, _)), Some(state)) = (&self.world.traffic, &self.traffic[env]) else { return };
+        for (z, zebra) in traffic.zebras.iter().enumerate() {
+            let s = traffic.plan.pedestrian(z, state.t);
+            let tint = match s {
+                PedestrianSignal::Walk => WALK,
+                _ if s.stand_lit(state.t) => HAND,
+                _ => DARK,
+            };
+            for band in zebra.ground_signal_bands(self.world.config.traffic_ground_signals) {
+                let size = [band.max[0] - band.min[0], band.max[1] - band.min[1]];
+                let centre = [0.5 * (band.min[0] + band.max[0]), 0.5 * (band.min[1] + band.max[1])];
+                if part_visible_circle(centre, 0.5 * size[0].hypot(size[1]), c.x, c.y, c.yaw, fov) {
+                    let pose = [centre[0], centre[1], LIFT, 0.0];
+                    self.batch.push(Prototype::GroundLight, Instance { pose, size: [size[0], size[1], 1.0, tint] });
+                }
+            }
+        }
+    }
+
     /// Render the current view of every environment: one submission, one readback.
     /// Errors in state mode, which has no renderer.
     pub fn render(&mut self) -> Result<Frames<'_>> {
@@ -279,6 +309,9 @@ impl VecEnv {
             let c = self.camera(env);
             if traffic {
                 self.add_instances(env, &c, fov);
+                if self.world.config.traffic_ground_signals.is_on() {
+                    self.add_ground_signals(env, &c, fov);
+                }
                 self.batch.finish_view();
             }
             self.cameras.push(c);

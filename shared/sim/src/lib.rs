@@ -39,7 +39,7 @@ pub mod state_obs;
 pub mod traffic;
 pub mod world;
 
-pub use config::{ObsMode, SimConfig, TrafficLevel};
+pub use config::{GroundSignals, ObsMode, SimConfig, TrafficLevel};
 pub use env::{Env, Info, Observation, PedestrianEnv, StepOutcome, VecEnv};
 pub use error::{Result, SimError};
 pub use pedestrian::{Action, Pedestrian, Transition, command_of};

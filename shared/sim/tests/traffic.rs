@@ -6,7 +6,9 @@ use std::sync::Arc;
 
 use pednav_sim::traffic::measure::{Bench, measure};
 use pednav_sim::traffic::{PedestrianSignal, TrafficSettings};
-use pednav_sim::{BackendChoice, ObsMode, Pose, Scene, SimConfig, SimError, SimWorld, TrafficLevel, VecEnv};
+use pednav_sim::{
+    BackendChoice, GroundSignals, ObsMode, Pose, Scene, SimConfig, SimError, SimWorld, TrafficLevel, VecEnv,
+};
 
 fn world(level: TrafficLevel, obs: ObsMode) -> Arc<SimWorld> {
     let cfg = SimConfig { traffic: level, obs_mode: obs, image_size: 42, ..SimConfig::default() };
@@ -205,13 +207,13 @@ fn a_task_sets_the_start_s_position_in_the_cycle() {
 }
 
 /// Reset environment 0 at `pose` with the first seed (from 0) whose start shows
-/// `want` on the east zebra.
-fn reset_showing(env: &mut VecEnv, pose: Pose, want: PedestrianSignal) {
+/// `want` on the east zebra; that seed.
+fn reset_showing(env: &mut VecEnv, pose: Pose, want: PedestrianSignal) -> u64 {
     for seed in 0..200 {
         env.reset(0, pose, seed).unwrap();
         let s = env.traffic(0).unwrap();
         if env.world().traffic.as_ref().unwrap().0.plan.pedestrian(0, s.t) == want {
-            return;
+            return seed;
         }
     }
     panic!("no seed under 200 starts with {want:?}");
@@ -304,6 +306,43 @@ fn vehicles_walkers_and_lamps_are_drawn() {
     let b = without.render().unwrap().frame(0);
     let differ = a.iter().zip(&b).filter(|(x, y)| x != y).count();
     assert!(differ > 20, "traffic changed only {differ} pixels of the view");
+}
+
+#[test]
+fn ground_signals_light_up_on_walk_and_show_dim_with_the_hand() {
+    let pixels = |ground_signals: GroundSignals| {
+        let cfg = SimConfig {
+            traffic: TrafficLevel::Light,
+            traffic_ground_signals: ground_signals,
+            image_size: 42,
+            ..SimConfig::default()
+        };
+        VecEnv::new(Arc::new(SimWorld::new(Scene::reference(), cfg).unwrap()), 1, BackendChoice::Auto).unwrap()
+    };
+    let mut without = pixels(GroundSignals::Off);
+    // Facing along the east zebra from its south end: 1.3–1.8 m short of the kerb band
+    // (y from −5.7 to −5.2); 0.6 m short of the kerb, where the edge lines begin (they
+    // run from y = −5 to the far kerb).
+    let kinds = [(GroundSignals::Kerb, -7.0), (GroundSignals::Edges, -5.6)];
+    for (kind, y) in kinds {
+        let pose = Pose::from_degrees(13.0, y, 90.0);
+        let mut with = pixels(kind);
+        for (signal, lit) in [(PedestrianSignal::Walk, true), (PedestrianSignal::DontWalk, false)] {
+            let seed = reset_showing(&mut with, pose, signal);
+            without.reset(0, pose, seed).unwrap();
+            let a = with.render().unwrap().frame(0).to_vec();
+            let b = without.render().unwrap().frame(0).to_vec();
+            // The band's pixels: those the option changed.
+            let band: Vec<u8> = a.iter().zip(&b).filter(|(x, y)| x != y).map(|(x, _)| *x).collect();
+            assert!(band.len() >= 20, "{kind:?}, {signal:?}: the band covers only {} pixels", band.len());
+            let mean = band.iter().map(|&g| g as f32).sum::<f32>() / band.len() as f32;
+            if lit {
+                assert!(mean > 230.0, "{kind:?}, WALK: the band's mean grey is {mean:.0}, not lit");
+            } else {
+                assert!((70.0..110.0).contains(&mean), "{kind:?}, DON'T WALK: mean grey {mean:.0}, not the dim hand");
+            }
+        }
+    }
 }
 
 #[test]

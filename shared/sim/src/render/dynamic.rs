@@ -1,4 +1,5 @@
-//! What moves: vehicles, walkers and the lamps of signal heads, drawn by instancing
+//! What moves: vehicles, walkers and the lamps of signal heads (and, as an option,
+//! signal lights set in the pavement), drawn by instancing
 //! a few fixed prototype meshes (one draw per prototype and view, every view in the
 //! same submission as the static scene), far ones as a single box
 //! ([`FAR_DISTANCE`]).
@@ -33,10 +34,13 @@ pub enum Prototype {
     FigureWalk = 5,
     /// A far vehicle or walker: one shaded box (a few pixels on screen).
     Far = 6,
+    /// A lit rectangle lying on the ground, facing up (the ground-level pedestrian
+    /// signals of `sim.traffic_ground_signals`).
+    GroundLight = 7,
 }
 
 /// Number of prototypes.
-pub const PROTOTYPES: usize = 7;
+pub const PROTOTYPES: usize = 8;
 
 /// Beyond this distance from the camera (metres) vehicles and walkers are drawn as
 /// [`Prototype::Far`]: at 84² and 135° a car there is under 10 pixels long.
@@ -166,6 +170,11 @@ pub fn build_prototypes(m: &mut MeshBuilder) -> [(u32, u32); PROTOTYPES] {
         tint_from(m, v0);
     });
     part(m, Prototype::Far, &|m| body(m, [-0.5, -0.5, 0.0], [0.5, 0.5, 1.0], 0.55, true));
+    part(m, Prototype::GroundLight, &|m| {
+        let v0 = m.vertices.len();
+        m.flat_quad([[-0.5, -0.5, 0.0], [0.5, -0.5, 0.0], [0.5, 0.5, 0.0], [-0.5, 0.5, 0.0]], 1.0);
+        tint_from(m, v0);
+    });
     ranges
 }
 

@@ -29,7 +29,7 @@ mod state;
 pub mod vehicle;
 pub mod walker;
 
-use crate::config::{SimConfig, TrafficLevel};
+use crate::config::{GroundSignals, SimConfig, TrafficLevel};
 use crate::geometry::{Axis, Polygon, Rect};
 
 pub use signal::{PedestrianSignal, SignalPlan, VehicleSignal};
@@ -127,7 +127,47 @@ impl Zebra {
             Axis::Y => [[cx, b.min[1]], [cx, b.max[1]]],
         }
     }
+
+    /// Where `sim.traffic_ground_signals` draws this zebra's lights: [`GroundSignals::Kerb`],
+    /// a band as wide as the zebra on the sidewalk at each end, from
+    /// [`KERB_SIGNAL_SET_BACK`] behind the zebra's end (past the kerb stones) to
+    /// [`KERB_SIGNAL_DEPTH`] further; [`GroundSignals::Edges`], a line
+    /// [`EDGE_SIGNAL_WIDTH`] wide along each side, from kerb to kerb. Empty when off.
+    pub fn ground_signal_bands(&self, kind: GroundSignals) -> Vec<Rect> {
+        let b = self.bounds;
+        // (min, max) along the walking axis, then across it.
+        let (along, across) = match self.walk_axis {
+            Axis::X => ([b.min[0], b.max[0]], [b.min[1], b.max[1]]),
+            Axis::Y => ([b.min[1], b.max[1]], [b.min[0], b.max[0]]),
+        };
+        let bands: Vec<([f32; 2], [f32; 2])> = match kind {
+            GroundSignals::Off => vec![],
+            GroundSignals::Kerb => {
+                let (near, far) = (KERB_SIGNAL_SET_BACK, KERB_SIGNAL_SET_BACK + KERB_SIGNAL_DEPTH);
+                vec![([along[0] - far, along[0] - near], across), ([along[1] + near, along[1] + far], across)]
+            }
+            GroundSignals::Edges => vec![
+                (along, [across[0] - EDGE_SIGNAL_WIDTH, across[0]]),
+                (along, [across[1], across[1] + EDGE_SIGNAL_WIDTH]),
+            ],
+        };
+        let rect = |(a, c): ([f32; 2], [f32; 2])| match self.walk_axis {
+            Axis::X => Rect { min: [a[0], c[0]], max: [a[1], c[1]] },
+            Axis::Y => Rect { min: [c[0], a[0]], max: [c[1], a[1]] },
+        };
+        bands.into_iter().map(rect).collect()
+    }
 }
+
+/// How far behind a zebra's end its kerb signal band starts, metres: past the 0.2 m
+/// band of kerb stones the ground texture draws there.
+pub const KERB_SIGNAL_SET_BACK: f32 = 0.2;
+
+/// Depth of a kerb signal band, metres.
+pub const KERB_SIGNAL_DEPTH: f32 = 0.5;
+
+/// Width of an edge signal line, metres.
+pub const EDGE_SIGNAL_WIDTH: f32 = 0.2;
 
 /// A resolved vehicle kind.
 #[derive(Debug, Clone, PartialEq)]
