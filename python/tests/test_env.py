@@ -106,6 +106,19 @@ def test_traffic_is_a_keyword_and_its_safety_events_are_in_info() -> None:
     env.close()
 
 
+def test_ground_signals_are_a_keyword_and_change_only_the_frames() -> None:
+    frames = []
+    for ground_signals in ("off", "edges"):
+        env = make(image_size=42, traffic="light", traffic_ground_signals=ground_signals)
+        # Facing along the east zebra 0.6 m short of its south kerb, where its edge lines begin.
+        obs, info = env.reset(seed=7, options={"start": (13.0, -5.6, 90.0)})
+        frames.append((obs, info["pose"]))
+        env.close()
+    (off, pose_off), (edges, pose_edges) = frames
+    assert np.array_equal(pose_off, pose_edges)
+    assert (off != edges).sum() >= 20, "the edge lines are not in the frame"
+
+
 def test_a_step_on_the_goal_side_sidewalk_pays_its_region_and_the_speed() -> None:
     env = make(obs_mode="state", start="first_task")
     env.reset(seed=0)

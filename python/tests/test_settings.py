@@ -26,6 +26,8 @@ from pednav_gym import PednavError
         ({"obs_mode": "depth"}, "obs_mode"),  # not a mode
         ({"maxspeed": 1.0}, "maxspeed"),  # not a field
         ({"max_speed": [1.0]}, "max_speed"),  # not a bool, number or string
+        ({"traffic": "medium", "traffic_ground_signals": "sideways"}, "traffic_ground_signals"),  # not a kind
+        ({"traffic_ground_signals": "edges"}, "traffic_ground_signals"),  # needs traffic
     ],
 )
 def test_a_refused_setting_raises_naming_the_field(settings: dict[str, object], named: str) -> None:

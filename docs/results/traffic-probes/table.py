@@ -12,6 +12,7 @@ for run in sorted(p.parent for p in here.glob("*/traffic-probe.json")):
     j = json.loads((run / "traffic-probe.json").read_text())
     frames = f"{j['image_size']}²" + (f", {j['supersample']}×{j['supersample']} samples" if j.get("supersample", 1) > 1 else "")
     frames += f", {j['fov_deg']:g}° lens" if j.get("fov_deg", 135.0) != 135.0 else ""
+    frames += f", ground signals {j['ground_signals']}" if j.get("ground_signals", "off") != "off" else ""
     for key, name in probes:
         r = j["probes"].get(key)
         if r is None:

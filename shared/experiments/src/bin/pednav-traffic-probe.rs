@@ -233,7 +233,7 @@ fn main() -> Result<()> {
         "image_size": size,
         "supersample": cli.supersample,
         "fov_deg": sim.fov_deg,
-        "traffic": sim.traffic,
+        "traffic": sim.traffic, "ground_signals": sim.traffic_ground_signals,
         "history": history,
         "encoder": format!("{encoder:?}"),
         "horizon_s": cli.horizon,
