@@ -280,14 +280,16 @@ impl VecEnv {
         /// Above the ground, metres: clear of its depth, under a pixel at any distance.
         const LIFT: f32 = 0.02;
         let (Some((traffic, _)), Some(state)) = (&self.world.traffic, &self.traffic[env]) else { return };
+        let kind = self.world.config.traffic_ground_signals;
         for (z, zebra) in traffic.zebras.iter().enumerate() {
+            let Some(bands) = zebra.ground_signal_bands(kind) else { return };
             let s = traffic.plan.pedestrian(z, state.t);
             let tint = match s {
                 PedestrianSignal::Walk => WALK,
                 _ if s.stand_lit(state.t) => HAND,
                 _ => DARK,
             };
-            for band in zebra.ground_signal_bands(self.world.config.traffic_ground_signals) {
+            for band in bands {
                 let size = [band.max[0] - band.min[0], band.max[1] - band.min[1]];
                 let centre = [0.5 * (band.min[0] + band.max[0]), 0.5 * (band.min[1] + band.max[1])];
                 if part_visible_circle(centre, 0.5 * size[0].hypot(size[1]), c.x, c.y, c.yaw, fov) {

@@ -132,21 +132,21 @@ impl Zebra {
     /// a band as wide as the zebra on the sidewalk at each end, from
     /// [`KERB_SIGNAL_SET_BACK`] behind the zebra's end (past the kerb stones) to
     /// [`KERB_SIGNAL_DEPTH`] further; [`GroundSignals::Edges`], a line
-    /// [`EDGE_SIGNAL_WIDTH`] wide along each side, from kerb to kerb. Empty when off.
-    pub fn ground_signal_bands(&self, kind: GroundSignals) -> Vec<Rect> {
+    /// [`EDGE_SIGNAL_WIDTH`] wide along each side, from kerb to kerb. `None` when off.
+    pub fn ground_signal_bands(&self, kind: GroundSignals) -> Option<[Rect; 2]> {
         let b = self.bounds;
         // (min, max) along the walking axis, then across it.
         let (along, across) = match self.walk_axis {
             Axis::X => ([b.min[0], b.max[0]], [b.min[1], b.max[1]]),
             Axis::Y => ([b.min[1], b.max[1]], [b.min[0], b.max[0]]),
         };
-        let bands: Vec<([f32; 2], [f32; 2])> = match kind {
-            GroundSignals::Off => vec![],
+        let bands: [([f32; 2], [f32; 2]); 2] = match kind {
+            GroundSignals::Off => return None,
             GroundSignals::Kerb => {
                 let (near, far) = (KERB_SIGNAL_SET_BACK, KERB_SIGNAL_SET_BACK + KERB_SIGNAL_DEPTH);
-                vec![([along[0] - far, along[0] - near], across), ([along[1] + near, along[1] + far], across)]
+                [([along[0] - far, along[0] - near], across), ([along[1] + near, along[1] + far], across)]
             }
-            GroundSignals::Edges => vec![
+            GroundSignals::Edges => [
                 (along, [across[0] - EDGE_SIGNAL_WIDTH, across[0]]),
                 (along, [across[1], across[1] + EDGE_SIGNAL_WIDTH]),
             ],
@@ -155,7 +155,7 @@ impl Zebra {
             Axis::X => Rect { min: [a[0], c[0]], max: [a[1], c[1]] },
             Axis::Y => Rect { min: [c[0], a[0]], max: [c[1], a[1]] },
         };
-        bands.into_iter().map(rect).collect()
+        Some(bands.map(rect))
     }
 }
 
