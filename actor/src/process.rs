@@ -60,6 +60,10 @@ struct Counters {
     episodes: u64,
     checksum: u32,
     recent_returns: VecDeque<f32>,
+    /// Steps onto a zebra outside WALK sent so far (with traffic).
+    dont_walk_entries: u64,
+    /// Steps on which a vehicle hit the agent sent so far (with traffic).
+    vehicle_hits: u64,
 }
 
 impl Counters {
@@ -67,6 +71,8 @@ impl Counters {
     fn sent(&mut self, header: &StepHeader, observation: &[u8]) {
         self.checksum = self.checksum.wrapping_add(header.record_crc(observation));
         self.steps += 1;
+        self.dont_walk_entries += u64::from(header.flags.contains(StepFlags::DONT_WALK_ENTRY));
+        self.vehicle_hits += u64::from(header.flags.contains(StepFlags::VEHICLE_HIT));
     }
 }
 
@@ -128,6 +134,9 @@ pub struct ActorProcess {
     next_episode: u64,
     actions: Vec<[f32; 3]>,
     timing: Timing,
+    /// With traffic: the world's full zebra-entry reward and the share of it paid in
+    /// episodes starting now (`curriculum.entry_reward_ramp`; 1 without a ramp).
+    entry_reward: Option<(f32, f32)>,
 }
 
 impl ActorProcess {
@@ -144,6 +153,7 @@ impl ActorProcess {
         let world = Arc::new(SimWorld::new(cfg.scene()?, cfg.sim.clone())?);
         let backend = BackendChoice::from_env().map_err(anyhow::Error::msg)?;
         let envs = VecEnv::new(world, m, backend)?;
+        let entry_reward = envs.world_dont_walk_entry().map(|full| (full, 1.0));
         if let Some(r) = envs.renderer() {
             tracing::info!(adapter = %r.adapter_description(), envs = m, "renderer ready");
         }
@@ -190,6 +200,7 @@ impl ActorProcess {
             next_episode: 0,
             actions: vec![[0.0; 3]; m],
             timing: Timing::new(0),
+            entry_reward,
             cfg,
             dir,
             stop,
@@ -241,6 +252,7 @@ impl ActorProcess {
         if starting.is_empty() {
             return Ok(true);
         }
+        self.ramp_entry_reward()?;
         for &e in &starting {
             let Some(task) = self.tasks.request(self.actor, e as u32)? else { return Ok(false) };
             self.counters.tasks += 1;
@@ -293,6 +305,23 @@ impl ActorProcess {
         drop(frames);
         self.timing.send += t0.elapsed().as_secs_f64();
         Ok(true)
+    }
+
+    /// Under `curriculum.entry_reward_ramp`: pay the ramp's share of the zebra-entry
+    /// reward in the episodes about to start, at the env steps the learner had taken in
+    /// when it published the weights acted with (their version is its update count).
+    fn ramp_entry_reward(&mut self) -> Result<()> {
+        let (Some((full, share)), Some(_)) = (self.entry_reward, self.cfg.curriculum.entry_reward_ramp) else {
+            return Ok(());
+        };
+        let learner_steps = self.cfg.dsac.env_steps_at_update(self.weights.version());
+        let now = self.cfg.curriculum.entry_reward_share(learner_steps);
+        if now != share {
+            self.envs.set_dont_walk_entry(paid(full, now) as f32)?;
+            self.entry_reward = Some((full, now));
+            tracing::debug!(learner_steps, reward = paid(full, now), "zebra-entry reward ramped");
+        }
+        Ok(())
     }
 
     /// Every environment's state vector when records carry it, else zeros (nobody
@@ -400,6 +429,7 @@ impl ActorProcess {
         // No return before the first episode ends.
         let recent = (!r.is_empty()).then(|| r.iter().sum::<f32>() / r.len() as f32);
         let version = self.weights.version();
+        let traffic = self.entry_reward.is_some();
         self.metrics.log_optional(
             c.steps,
             &[
@@ -410,6 +440,9 @@ impl ActorProcess {
                 (col::INFERENCE_MS_PER_STEP, Some(1e3 * t.infer / n)),
                 (col::SIM_MS_PER_STEP, Some(1e3 * t.sim / n)),
                 (col::RENDER_SEND_MS_PER_STEP, Some(1e3 * t.send / n)),
+                (col::ZEBRA_ENTRY_REWARD, self.entry_reward.map(|(full, share)| paid(full, share))),
+                (col::DONT_WALK_ENTRIES, traffic.then_some(c.dont_walk_entries as f64)),
+                (col::VEHICLE_HITS, traffic.then_some(c.vehicle_hits as f64)),
             ],
         )?;
         self.health.metrics(&self.metrics);
@@ -484,6 +517,11 @@ impl ActorProcess {
         );
         Ok(())
     }
+}
+
+/// The zebra-entry reward paid at `share` of its `full` value (0, not −0, at none of it).
+fn paid(full: f32, share: f32) -> f64 {
+    f64::from(full * share) + 0.0
 }
 
 /// The policy that acts: the random walk when the run asks for it, else the learned one.

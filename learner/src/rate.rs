@@ -62,6 +62,20 @@ mod tests {
     use super::*;
 
     #[test]
+    fn the_env_steps_an_actor_reads_off_the_update_count_are_the_first_that_allow_it() {
+        for (warmup, interval) in [(5000, 8), (1, 1), (64, 3)] {
+            let cfg = pednav_config::DsacConfig { warmup, train_interval: interval, ..Default::default() };
+            for u in [1, 2, 7, 1000] {
+                let steps = cfg.env_steps_at_update(u);
+                let at = |inserted| RateLimiter { inserted, ..RateLimiter::new(warmup, interval, 1) }.allowed_updates();
+                assert_eq!(at(steps), u, "warm-up {warmup}, interval {interval}, {u} updates");
+                assert_eq!(at(steps - 1), u - 1, "one step fewer allows one update fewer");
+            }
+            assert_eq!(cfg.env_steps_at_update(0), 0);
+        }
+    }
+
+    #[test]
     fn warmup_then_one_update_per_interval() {
         let mut r = RateLimiter::new(100, 8, 2);
         r.inserted(99);

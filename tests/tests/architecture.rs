@@ -259,7 +259,6 @@ const KERNEL_FOLDER: &str = "shared/nets/src/ops/conv/";
 /// seams and delete its line.
 const LONG_FUNCTIONS: &[(&str, &str, usize)] = &[
     ("deploy/pednav-bench/src/soak/report.rs", "build", 462),
-    ("shared/sim/src/traffic/resolve.rs", "resolve", 445),
     ("shared/sim/src/scene/mod.rs", "from_spec", 272),
     ("deploy/pednav-bench/src/soak/mod.rs", "run", 258),
     ("shared/sim/src/render/mod.rs", "new", 249),
@@ -268,11 +267,8 @@ const LONG_FUNCTIONS: &[(&str, &str, usize)] = &[
     ("shared/runtime/src/memory.rs", "memory_estimate", 210),
     ("shared/runtime/src/config.rs", "validate", 175),
     ("shared/nets/src/ops/conv.rs", "backward", 172),
-    ("shared/experiments/src/bin/pednav-traffic-probe.rs", "main", 153),
-    ("shared/sim/src/bin/pednav-sim.rs", "main", 152),
     ("shared/bridge/src/actor_host.rs", "run_actor_host", 146),
     ("shared/sim/src/render/mod.rs", "render_with", 141),
-    ("shared/experiments/src/bin/pednav-eval.rs", "main", 134),
     ("shared/sim/src/traffic/vehicle.rs", "advance", 126),
     ("deploy/pednav-bench/src/bridge.rs", "run", 119),
     ("shared/experiments/src/bin/pednav-diagnose.rs", "main", 117),

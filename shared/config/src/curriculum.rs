@@ -104,6 +104,18 @@ pub struct CurriculumConfig {
     /// episode (`"drawn"`, the default) or proposed with the pose as part of the task
     /// (`"task"`). Ignored without traffic; `"task"` with traffic off is refused.
     pub signal_phase: SignalPhase,
+    /// With traffic: a reward curriculum for entering a zebra outside WALK
+    /// (`sim.traffic_dont_walk_entry`, or the scene's). `[from, to]` in env steps: the
+    /// training actors pay 0 of it before `from`, all of it from `to` on, and a linear
+    /// share between, so that the crossing is learned before its timing is (an option
+    /// beyond the paper, which has no traffic). Env steps as the learner counts them — read off
+    /// the version of the weights an actor acts with (the learner's update count) at the
+    /// replay ratio, [`crate::DsacConfig::env_steps_at_update`] — so every actor follows the same ramp and a resumed run goes on with it; an
+    /// episode keeps the reward it started with. Evaluation always pays the full value.
+    /// Absent (the default): the full value from the first step. Range: from ≤ to ≤ 1e9;
+    /// needs `sim.traffic` on.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub entry_reward_ramp: Option<[u64; 2]>,
 }
 
 impl Default for CurriculumConfig {
@@ -127,6 +139,7 @@ impl Default for CurriculumConfig {
             net: TaskNetConfig::default(),
             max_rejections: 1000,
             signal_phase: SignalPhase::Drawn,
+            entry_reward_ramp: None,
         }
     }
 }
@@ -136,6 +149,15 @@ impl CurriculumConfig {
     pub fn validate(&self) -> Result<()> {
         let bad =
             |field: &'static str, value: String, message: &str| Err(ConfigError::curriculum(field, value, message));
+        if let Some([from, to]) = self.entry_reward_ramp {
+            if from > to || to > 1_000_000_000 {
+                return bad(
+                    "entry_reward_ramp",
+                    format!("[{from}, {to}]"),
+                    "must be [from, to] env steps, from ≤ to ≤ 1e9",
+                );
+            }
+        }
         if !(self.gamma > 0.0 && self.gamma < 1.0) {
             return bad("gamma", self.gamma.to_string(), "must be in (0, 1)");
         }
@@ -211,8 +233,16 @@ impl CurriculumConfig {
         Ok(())
     }
 
-    /// Check against the run's traffic: a signal phase in the task needs traffic on.
+    /// Check against the run's traffic: a signal phase in the task and a ramped entry
+    /// reward need traffic on.
     pub fn validate_for_traffic(&self, traffic_on: bool) -> Result<()> {
+        if let (Some([from, to]), false) = (self.entry_reward_ramp, traffic_on) {
+            return Err(ConfigError::curriculum(
+                "entry_reward_ramp",
+                format!("[{from}, {to}]"),
+                "a ramped zebra-entry reward needs traffic: set sim.traffic to light, medium or heavy, or remove it",
+            ));
+        }
         if self.signal_phase == SignalPhase::Task && !traffic_on {
             return Err(ConfigError::curriculum(
                 "signal_phase",
@@ -221,6 +251,17 @@ impl CurriculumConfig {
             ));
         }
         Ok(())
+    }
+
+    /// The share (0 … 1) of the zebra-entry reward the training actors pay at
+    /// `env_steps` ([`CurriculumConfig::entry_reward_ramp`]; 1 without a ramp).
+    pub fn entry_reward_share(&self, env_steps: u64) -> f32 {
+        match self.entry_reward_ramp {
+            None => 1.0,
+            Some([from, _]) if env_steps < from => 0.0,
+            Some([from, to]) if env_steps >= to || to == from => 1.0,
+            Some([from, to]) => ((env_steps - from) as f64 / (to - from) as f64) as f32,
+        }
     }
 }
 
@@ -260,5 +301,25 @@ mod tests {
         // The fixed start proposes nothing, so the setting is moot there.
         CurriculumConfig { variant: Variant::FixedStart, ..enlarged }.validate_for_scene("plain.toml", false).unwrap();
         CurriculumConfig::default().validate_for_scene("plain.toml", false).unwrap();
+    }
+
+    #[test]
+    fn the_entry_reward_share_ramps_linearly_between_its_two_env_step_counts() {
+        let ramp = CurriculumConfig { entry_reward_ramp: Some([100_000, 300_000]), ..Default::default() };
+        let shares =
+            [0, 99_999, 100_000, 150_000, 200_000, 299_999, 300_000, 5_000_000].map(|s| ramp.entry_reward_share(s));
+        assert_eq!(shares, [0.0, 0.0, 0.0, 0.25, 0.5, 0.999995, 1.0, 1.0]);
+        let step = CurriculumConfig { entry_reward_ramp: Some([50, 50]), ..Default::default() };
+        assert_eq!([49, 50, 51].map(|s| step.entry_reward_share(s)), [0.0, 1.0, 1.0], "from = to: a step");
+        assert_eq!(CurriculumConfig::default().entry_reward_share(0), 1.0, "no ramp: the full reward at once");
+        ramp.validate().unwrap();
+        ramp.validate_for_traffic(true).unwrap();
+        let e = ramp.validate_for_traffic(false).unwrap_err();
+        assert_eq!((e.section, e.field), ("curriculum", "entry_reward_ramp"));
+        assert!(e.to_string().contains("sim.traffic"), "{e}");
+        for bad in [[2, 1], [0, 1_000_000_001]] {
+            let e = CurriculumConfig { entry_reward_ramp: Some(bad), ..Default::default() }.validate().unwrap_err();
+            assert_eq!(e.field, "entry_reward_ramp", "{bad:?}");
+        }
     }
 }

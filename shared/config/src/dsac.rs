@@ -149,6 +149,17 @@ impl Default for DsacConfig {
 }
 
 impl DsacConfig {
+    /// The env steps taken in by the time the learner may have done `updates` updates at
+    /// this replay ratio (`warmup` + `train_interval` × (`updates` − 1); 0 before the
+    /// first): how an actor reads the run's progress off the weights version (the
+    /// learner's update count) it acts with.
+    pub fn env_steps_at_update(&self, updates: u64) -> u64 {
+        match updates {
+            0 => 0,
+            u => self.warmup.saturating_add(self.train_interval.saturating_mul(u - 1)),
+        }
+    }
+
     /// The largest `n_step` accepted (each sample carries N_h + n frames; beyond a few
     /// dozen steps γⁿ no longer bootstraps much anyway).
     pub const MAX_N_STEP: usize = 64;

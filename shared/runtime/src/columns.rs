@@ -110,9 +110,16 @@ pub mod actor {
     pub const SIM_MS_PER_STEP: &str = "sim_ms_per_step";
     /// Milliseconds of rendering and sending per env step.
     pub const RENDER_SEND_MS_PER_STEP: &str = "render_send_ms_per_step";
+    /// With traffic: the reward for entering a zebra outside WALK paid in episodes
+    /// starting now (`curriculum.entry_reward_ramp` ramps it); empty without traffic.
+    pub const ZEBRA_ENTRY_REWARD: &str = "zebra_entry_reward";
+    /// With traffic: steps onto a zebra outside WALK so far (this incarnation); empty without.
+    pub const DONT_WALK_ENTRIES: &str = "dont_walk_entries";
+    /// With traffic: vehicle hits so far (this incarnation); empty without.
+    pub const VEHICLE_HITS: &str = "vehicle_hits";
 
     /// Every column an actor writes (after [`super::STEP`]).
-    pub const ALL: [&str; 7] = [
+    pub const ALL: [&str; 10] = [
         STEPS_PER_S,
         EPISODES,
         POLICY_VERSION,
@@ -120,5 +127,8 @@ pub mod actor {
         INFERENCE_MS_PER_STEP,
         SIM_MS_PER_STEP,
         RENDER_SEND_MS_PER_STEP,
+        ZEBRA_ENTRY_REWARD,
+        DONT_WALK_ENTRIES,
+        VEHICLE_HITS,
     ];
 }

@@ -56,6 +56,9 @@ pub struct VecEnv {
     cameras: Vec<CameraView>,
     /// Each environment's traffic (all `None` with traffic off).
     traffic: Vec<Option<TrafficState>>,
+    /// The reward for entering a zebra outside WALK in episodes reset from now on, when
+    /// it differs from the world's ([`VecEnv::set_dont_walk_entry`]).
+    dont_walk_entry: Option<f32>,
     batch: DynamicBatch,
 }
 
@@ -84,6 +87,7 @@ impl VecEnv {
             transitions: Vec::with_capacity(num_envs),
             cameras: Vec::with_capacity(num_envs),
             traffic: vec![None; num_envs],
+            dont_walk_entry: None,
             batch: DynamicBatch::default(),
             world,
         })
@@ -128,8 +132,34 @@ impl VecEnv {
         if let Some((traffic, settings)) = &self.world.traffic {
             let cfg = &self.world.config;
             let start = TrafficStart { seed, cycle, agent: [task.x, task.y], agent_radius: cfg.agent_radius };
-            self.traffic[env] = Some(TrafficState::new(traffic, *settings, start, cfg.dt));
+            let mut settings = *settings;
+            settings.dont_walk_entry = self.dont_walk_entry.unwrap_or(settings.dont_walk_entry);
+            self.traffic[env] = Some(TrafficState::new(traffic, settings, start, cfg.dt));
         }
+        Ok(())
+    }
+
+    /// The world's reward for entering a zebra outside WALK (`None` with traffic off).
+    pub fn world_dont_walk_entry(&self) -> Option<f32> {
+        self.world.traffic.as_ref().map(|(_, s)| s.dont_walk_entry)
+    }
+
+    /// Pay `reward` instead of the world's for entering a zebra outside WALK in every
+    /// episode reset from now on (episodes under way keep theirs: an episode has one
+    /// reward). The training actors ramp it in (`curriculum.entry_reward_ramp`). An
+    /// error with traffic off or outside the range the config allows ([-1000, 0]).
+    pub fn set_dont_walk_entry(&mut self, reward: f32) -> Result<()> {
+        let value = reward.to_string();
+        if self.world.traffic.is_none() {
+            let message = "there is no zebra signal without traffic (sim.traffic is off)".into();
+            return Err(SimError::Config { field: "dont_walk_entry", value, message });
+        }
+        crate::config::check_dont_walk_entry(reward).map_err(|message| SimError::Config {
+            field: "dont_walk_entry",
+            value,
+            message,
+        })?;
+        self.dont_walk_entry = Some(reward);
         Ok(())
     }
 

@@ -265,6 +265,39 @@ fn the_dont_walk_entry_reward_is_paid_once_on_the_step_onto_the_zebra() {
 }
 
 #[test]
+fn a_set_entry_reward_applies_from_the_next_reset_and_is_range_checked() {
+    let cfg = SimConfig {
+        traffic: TrafficLevel::Light,
+        traffic_dont_walk_entry: Some(-100.0),
+        obs_mode: ObsMode::State,
+        ..SimConfig::default()
+    };
+    let w = Arc::new(SimWorld::new(Scene::reference(), cfg).unwrap());
+    let rewards = w.scene.rewards().clone();
+    let road = |t: &pednav_sim::Transition| rewards.step_reward(pednav_sim::RegionKind::Road, 2.0, t.collided);
+    let mut env = VecEnv::new(w.clone(), 1, BackendChoice::Auto).unwrap();
+    assert_eq!(env.world_dont_walk_entry(), Some(-100.0));
+    let kerb = Pose::from_degrees(13.0, -5.3, 90.0);
+    let seed = reset_showing(&mut env, kerb, PedestrianSignal::DontWalk);
+    env.set_dont_walk_entry(-25.0).unwrap();
+    let under_way = env.step(&[[1.0, 0.0, 0.0]]).unwrap()[0];
+    assert!(under_way.safety.dont_walk_entry);
+    assert_eq!(under_way.reward, road(&under_way) - 100.0, "the episode under way keeps its reward");
+    env.reset(0, kerb, seed).unwrap();
+    let next = env.step(&[[1.0, 0.0, 0.0]]).unwrap()[0];
+    assert!(next.safety.dont_walk_entry);
+    assert_eq!(next.reward, road(&next) - 25.0, "the next episode pays the set reward");
+    for bad in [1.0, -1001.0, f32::NAN] {
+        let e = env.set_dont_walk_entry(bad).unwrap_err().to_string();
+        assert!(e.contains("dont_walk_entry") && e.contains("[-1000, 0]"), "{e}");
+    }
+    let mut off = VecEnv::new(world(TrafficLevel::Off, ObsMode::State), 1, BackendChoice::Auto).unwrap();
+    assert_eq!(off.world_dont_walk_entry(), None);
+    let e = off.set_dont_walk_entry(-10.0).unwrap_err().to_string();
+    assert!(e.contains("dont_walk_entry") && e.contains("traffic"), "{e}");
+}
+
+#[test]
 fn a_vehicle_that_drives_into_the_agent_ends_the_episode_with_the_hit_penalty() {
     // Nobody yields, heavy flow; the agent stands in the eastbound lane inside the crossing box.
     let cfg = SimConfig {

@@ -225,19 +225,7 @@ fn main() -> Result<()> {
     let gamma = cli.gamma;
 
     if let Some(k) = cli.shard {
-        // Worker: run a shard, write JSON.
-        let mine = protocol::shard(&all, k, cli.of);
-        let mut ev =
-            Evaluator::new(cfg.scene()?, &cfg.sim, cli.t_max, gamma, cli.envs, kind(&cli), nets, cli.seed ^ k as u64)?;
-        let out = cli.shard_out.as_ref().context("--shard needs --shard-out")?;
-        // Episodes done so far, for the parent's progress line (best effort: a failed
-        // write costs the line, not the evaluation).
-        let count = shard_progress_path(out);
-        let results = ev.run(&mine, |done| {
-            let _ = std::fs::write(&count, done.to_string());
-        })?;
-        std::fs::write(out, serde_json::to_vec(&results)?).with_context(|| format!("writing {}", out.display()))?;
-        return Ok(());
+        return run_shard(&cli, &cfg, nets, &all, k);
     }
 
     let policy_name = cli.policy.to_possible_value().expect("no policy is skipped").get_name().to_string();
@@ -277,24 +265,61 @@ fn main() -> Result<()> {
     let order = |r: &EpisodeResult| (r.point, YAWS_DEG.iter().position(|&y| y == r.yaw_deg).unwrap_or(99), r.run);
     results.sort_by_key(order);
 
+    print_table_and_write_outputs(&cli, &cfg, &all, &results, &policy_name, &out)?;
+    record_gifs(&cli, &cfg, &all, &out)?;
+    eprintln!("wrote {}/{{table.txt,table.csv,results.csv,trajectories.png}}", out.display());
+    Ok(())
+}
+
+/// Worker (`--shard K`): runs its shard of the tasks and writes the results as JSON to `--shard-out`.
+fn run_shard(
+    cli: &Cli,
+    cfg: &RunConfig,
+    nets: Option<(pednav_nets::NetsConfig, pednav_nets::DsacNets)>,
+    all: &[EvalTask],
+    k: usize,
+) -> Result<()> {
+    let mine = protocol::shard(all, k, cli.of);
+    let mut ev =
+        Evaluator::new(cfg.scene()?, &cfg.sim, cli.t_max, cli.gamma, cli.envs, kind(cli), nets, cli.seed ^ k as u64)?;
+    let out = cli.shard_out.as_ref().context("--shard needs --shard-out")?;
+    // Episodes done so far, for the parent's progress line (best effort: a failed
+    // write costs the line, not the evaluation).
+    let count = shard_progress_path(out);
+    let results = ev.run(&mine, |done| {
+        let _ = std::fs::write(&count, done.to_string());
+    })?;
+    std::fs::write(out, serde_json::to_vec(&results)?).with_context(|| format!("writing {}", out.display()))?;
+    Ok(())
+}
+
+/// Prints the Table III layout (oracle column unless `--no-oracle`) and writes every output file to `out`.
+fn print_table_and_write_outputs(
+    cli: &Cli,
+    cfg: &RunConfig,
+    all: &[EvalTask],
+    results: &[EpisodeResult],
+    policy_name: &str,
+    out: &Path,
+) -> Result<()> {
     let oracle = if cli.no_oracle {
         Default::default()
     } else {
         let mut starts: Vec<(u32, f32, f32)> = Vec::new();
-        for t in &all {
+        for t in all {
             if !starts.iter().any(|s| s.0 == t.point) {
                 starts.push((t.point, t.x, t.y));
             }
         }
-        oracle_per_point(&cfg.scene()?, &cfg.sim, gamma, cli.t_max, &starts)?
+        oracle_per_point(&cfg.scene()?, &cfg.sim, cli.gamma, cli.t_max, &starts)?
     };
     let rows = if cli.starts.is_some() { table::Rows::StartList } else { table::Rows::ValidationPoints };
-    let t = table::aggregate(&results, &oracle, rows);
+    let t = table::aggregate(results, &oracle, rows);
     let title = format!(
         "{}{} — {policy_name} policy{}, {} episodes, T_max {}",
         cli.run_dir.as_ref().map_or("no run".into(), |d| d.display().to_string()),
         cli.checkpoint.as_ref().map_or(String::new(), |c| format!(" (checkpoint {})", c.display())),
-        action_label(&cli),
+        action_label(cli),
         results.len(),
         cli.t_max
     );
@@ -306,10 +331,10 @@ fn main() -> Result<()> {
     let scene = cfg.scene()?;
     type WriteTo<'a> = &'a dyn Fn(&Path) -> Result<()>;
     let outputs: [(&str, WriteTo); 4] = [
-        ("results.csv", &|p| Ok(table::write_results_csv(&results, p)?)),
+        ("results.csv", &|p| Ok(table::write_results_csv(results, p)?)),
         ("table.txt", &|p| Ok(std::fs::write(p, &text)?)),
         ("table.csv", &|p| Ok(t.write_csv(p)?)),
-        ("trajectories.png", &|p| Ok(plots::trajectories(&scene, &results, &policy_name, p)?)),
+        ("trajectories.png", &|p| Ok(plots::trajectories(&scene, results, policy_name, p)?)),
     ];
     let failed: Vec<String> = outputs
         .iter()
@@ -326,10 +351,15 @@ fn main() -> Result<()> {
             failed.join("\n  ")
         );
     }
+    Ok(())
+}
+
+/// Records each `--gif POINT:YAW:RUN` episode as a GIF in `out`, with its own one-environment evaluator.
+fn record_gifs(cli: &Cli, cfg: &RunConfig, all: &[EvalTask], out: &Path) -> Result<()> {
     for spec in &cli.gif {
-        let task = gif_task(spec, &all)?;
+        let task = gif_task(spec, all)?;
         let mut ev =
-            Evaluator::new(cfg.scene()?, &cfg.sim, cli.t_max, gamma, 1, kind(&cli), setup(&cli)?.1, task.seed)?;
+            Evaluator::new(cfg.scene()?, &cfg.sim, cli.t_max, cli.gamma, 1, kind(cli), setup(cli)?.1, task.seed)?;
         let path = out.join(format!("episode-p{}-y{}-r{}.gif", task.point, task.yaw_deg, task.run));
         let r = ev.record_gif(task, &path)?;
         eprintln!(
@@ -340,7 +370,6 @@ fn main() -> Result<()> {
             r.success
         );
     }
-    eprintln!("wrote {}/{{table.txt,table.csv,results.csv,trajectories.png}}", out.display());
     Ok(())
 }
 

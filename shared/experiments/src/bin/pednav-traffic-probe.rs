@@ -106,10 +106,49 @@ fn task<'a>(name: &'static str, shape: ProbeShape, frames: Pair<'a, Vec<u8>>, la
     }
 }
 
+/// What is probed, after `--config` and the overrides: the scene file, the simulator, the encoder and its history.
+struct Setup {
+    scene_path: Option<PathBuf>,
+    sim: SimConfig,
+    encoder: EncoderKind,
+    history: usize,
+}
+
 fn main() -> Result<()> {
     pednav_sim::prepare_headless_env();
     pednav_runtime::init_logging();
     let cli = Cli::parse();
+    let s = setup(&cli)?;
+    let size = s.sim.image_size as usize;
+    let scene = Scene::load_or_reference(s.scene_path.as_deref()).context("scene")?;
+    // The world renders at k × the side; the examples are k × k block means.
+    let rendered = SimConfig { image_size: s.sim.image_size * cli.supersample, ..s.sim.clone() };
+    let world = Arc::new(SimWorld::new(scene, rendered)?);
+    eprintln!(
+        "scene {} at {size}²{}, traffic {:?}, history {} ({:?}), {} + {} examples",
+        world.scene.origin,
+        if cli.supersample > 1 { format!(" ({}× supersampled)", cli.supersample) } else { String::new() },
+        s.sim.traffic,
+        s.history,
+        s.encoder,
+        cli.examples,
+        cli.test_examples
+    );
+
+    let started = Instant::now();
+    let (train, test) = draw_example_sets(&cli, &world, s.history)?;
+    let reports = run_probes(&cli, &s, &train, &test)?;
+    write_outputs(&cli, &s, &world, &train, &test, &reports, started)?;
+    let summary: Vec<String> = reports
+        .iter()
+        .map(|(n, r)| format!("{n} {:.1} % (majority {:.1} %)", 100.0 * r.test_accuracy, 100.0 * r.test_majority))
+        .collect();
+    println!("{} — traffic-probe.json, kerb.png and history.png in {}", summary.join(", "), cli.out.display());
+    Ok(())
+}
+
+/// Checks the counts, then reads `--config` (or the CPU preset) and applies the overrides of the command line.
+fn setup(cli: &Cli) -> Result<Setup> {
     if cli.examples == 0 || cli.test_examples == 0 || cli.epochs == 0 {
         bail!("--examples, --test-examples and --epochs must be at least 1");
     }
@@ -142,21 +181,11 @@ fn main() -> Result<()> {
         bail!("--supersample must be at least 1");
     }
     sim.validate().context("simulator settings")?;
-    let size = sim.image_size as usize;
-    let scene = Scene::load_or_reference(scene_path.as_deref()).context("scene")?;
-    // The world renders at k × the side; the examples are k × k block means.
-    let rendered = SimConfig { image_size: sim.image_size * cli.supersample, ..sim.clone() };
-    let world = Arc::new(SimWorld::new(scene, rendered)?);
-    eprintln!(
-        "scene {} at {size}²{}, traffic {:?}, history {history} ({encoder:?}), {} + {} examples",
-        world.scene.origin,
-        if cli.supersample > 1 { format!(" ({}× supersampled)", cli.supersample) } else { String::new() },
-        sim.traffic,
-        cli.examples,
-        cli.test_examples
-    );
+    Ok(Setup { scene_path, sim, encoder, history })
+}
 
-    let started = Instant::now();
+/// Draws the training and the test kerb examples, from two seed streams, reporting their label shares.
+fn draw_example_sets(cli: &Cli, world: &Arc<SimWorld>, history: usize) -> Result<(KerbExamples, KerbExamples)> {
     let tty = std::io::stderr().is_terminal();
     let draw = |name: &str, seed: u64, examples: usize| -> Result<KerbExamples> {
         let cfg = KerbSetConfig {
@@ -167,7 +196,7 @@ fn main() -> Result<()> {
             batch_envs: 32,
             supersample: cli.supersample,
         };
-        let set = collect(&world, cfg, cli.backend, |done| {
+        let set = collect(world, cfg, cli.backend, |done| {
             if tty {
                 eprint!("\r    {name}: {done}/{examples} examples");
             }
@@ -187,7 +216,17 @@ fn main() -> Result<()> {
     // Two seed streams: the test poses, phases and traffic are never trained on.
     let train = draw("training set", cli.seed, cli.examples)?;
     let test = draw("test set", cli.seed ^ 0x7465_7374, cli.test_examples)?;
+    Ok((train, test))
+}
 
+/// Trains and tests each probe (one frame, and the history unless skipped), reporting each one's accuracy.
+fn run_probes(
+    cli: &Cli,
+    s: &Setup,
+    train: &KerbExamples,
+    test: &KerbExamples,
+) -> Result<Vec<(&'static str, ClassifierReport)>> {
+    let (size, history, encoder) = (s.sim.image_size as usize, s.history, s.encoder);
     // Every probe reads one of two views of the same examples: the last frame, or the history.
     let (train_last, test_last) = (train.last_frames(), test.last_frames());
     let one = ProbeShape::single_frame(size, 2);
@@ -201,7 +240,7 @@ fn main() -> Result<()> {
         tasks.push(task("walk_history", shape, all, walk));
         tasks.push(task("vehicle_history", shape, all, vehicle));
     }
-    let mut reports: Vec<(&str, ClassifierReport)> = Vec::new();
+    let mut reports: Vec<(&'static str, ClassifierReport)> = Vec::new();
     for task in &tasks {
         let cfg = ClassifierConfig {
             epochs: cli.epochs,
@@ -224,7 +263,20 @@ fn main() -> Result<()> {
         );
         reports.push((task.name, report));
     }
+    Ok(reports)
+}
 
+/// Writes `traffic-probe.json` (settings, label shares, test labels, the probes' reports) and the sheets to `--out`.
+fn write_outputs(
+    cli: &Cli,
+    s: &Setup,
+    world: &SimWorld,
+    train: &KerbExamples,
+    test: &KerbExamples,
+    reports: &[(&'static str, ClassifierReport)],
+    started: Instant,
+) -> Result<()> {
+    let (size, sim) = (s.sim.image_size as usize, &s.sim);
     std::fs::create_dir_all(&cli.out).with_context(|| format!("creating {}", cli.out.display()))?;
     let probes: serde_json::Map<String, serde_json::Value> =
         reports.iter().map(|(n, r)| Ok(((*n).to_string(), serde_json::to_value(r)?))).collect::<Result<_>>()?;
@@ -234,8 +286,8 @@ fn main() -> Result<()> {
         "supersample": cli.supersample,
         "fov_deg": sim.fov_deg,
         "traffic": sim.traffic, "ground_signals": sim.traffic_ground_signals,
-        "history": history,
-        "encoder": format!("{encoder:?}"),
+        "history": s.history,
+        "encoder": format!("{:?}", s.encoder),
         "horizon_s": cli.horizon,
         "seed": cli.seed,
         "epochs": cli.epochs,
@@ -251,12 +303,7 @@ fn main() -> Result<()> {
     let path = cli.out.join("traffic-probe.json");
     std::fs::write(&path, serde_json::to_string_pretty(&json)? + "\n")
         .with_context(|| format!("writing {}", path.display()))?;
-    write_sheets(&test, &cli.out)?;
-    let summary: Vec<String> = reports
-        .iter()
-        .map(|(n, r)| format!("{n} {:.1} % (majority {:.1} %)", 100.0 * r.test_accuracy, 100.0 * r.test_majority))
-        .collect();
-    println!("{} — traffic-probe.json, kerb.png and history.png in {}", summary.join(", "), cli.out.display());
+    write_sheets(test, &cli.out)?;
     Ok(())
 }
 

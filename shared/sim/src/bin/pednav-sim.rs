@@ -152,6 +152,22 @@ enum PolicyChoice {
     Straight,
 }
 
+/// The options every subcommand shares, copied out of [`Cli`].
+#[derive(Clone, Copy)]
+struct Globals {
+    backend: BackendChoice,
+    seed: u64,
+    traffic: TrafficLevel,
+}
+
+/// Where and when `view` looks: the body pose, the head's yaw offset and the seconds into the episode.
+#[derive(Clone, Copy)]
+struct Shot {
+    pose: Pose,
+    head_deg: f32,
+    time: f32,
+}
+
 fn main() -> Result<()> {
     pednav_sim::prepare_headless_env();
     tracing_subscriber::fmt()
@@ -162,6 +178,7 @@ fn main() -> Result<()> {
         .init();
     let cli = Cli::parse();
     let scene = Scene::load_or_reference(cli.scene.as_deref()).context("loading the scene")?;
+    let g = Globals { backend: cli.backend, seed: cli.seed, traffic: cli.traffic };
     match cli.command {
         Command::View { x, y, yaw_deg, head_deg, size, people_size, time, out } => {
             let fs = scene.fixed_start();
@@ -170,77 +187,11 @@ fn main() -> Result<()> {
                 y: y.unwrap_or(fs.y),
                 yaw: yaw_deg.map(f32::to_radians).unwrap_or(fs.yaw),
             };
-            let sim = SimConfig { image_size: size, traffic: cli.traffic, ..SimConfig::default() };
-            let world = SimWorld::new(scene.clone(), sim.clone())?;
-            let cam = CameraView {
-                x: pose.x,
-                y: pose.y,
-                z: world.config.eye_height,
-                yaw: pose.yaw + head_deg.to_radians(),
-                look: Look::default(),
-            };
-            let traffic_view = |size: u32| -> Result<Vec<u8>> {
-                let world = Arc::new(SimWorld::new(scene.clone(), SimConfig { image_size: size, ..sim.clone() })?);
-                let mut env = VecEnv::new(world.clone(), 1, cli.backend)?;
-                env.reset(0, pose, cli.seed)?;
-                let head = (head_deg / world.config.max_head_yaw_deg).clamp(-1.0, 1.0);
-                for _ in 0..(time / world.config.dt).round() as u32 {
-                    let t = env.step(&[[-1.0, 0.0, head]])?[0];
-                    if t.terminated || t.truncated {
-                        bail!("the episode ended before --time {time} s");
-                    }
-                }
-                if let Some(t) = env.traffic(0) {
-                    println!(
-                        "traffic: {} vehicles on the lanes, {} walkers, signal clock {:.2} s",
-                        t.num_vehicles(),
-                        t.walkers.len(),
-                        t.t
-                    );
-                }
-                Ok(env.render()?.frame(0))
-            };
-            let traffic_on = cli.traffic.is_on();
-            let frame = if traffic_on { traffic_view(size)? } else { render_one(&world, cli.backend, size, cam)? };
-            save_gray_png(&frame, size, &out)?;
-            let x4 = sibling(&out, "x4");
-            save_png(&enlarge_gray(&frame, size, 4), &x4)?;
-            println!("wrote {} ({size}×{size}) and {}", out.display(), x4.display());
-            if people_size > 0 {
-                let big = if traffic_on {
-                    traffic_view(people_size)?
-                } else {
-                    render_one(&world, cli.backend, people_size, cam)?
-                };
-                let p = sibling(&out, &people_size.to_string());
-                save_gray_png(&big, people_size, &p)?;
-                println!("wrote {} ({people_size}×{people_size})", p.display());
-            }
+            view(&scene, g, Shot { pose, head_deg, time }, size, people_size, &out)?;
         }
-        Command::Map { px_per_m, oracle_from, trajectory, out } => {
-            let world = SimWorld::new(scene, SimConfig::default())?;
-            let mut canvas = draw_map(&world.scene, &world.map, px_per_m);
-            if let Some(k) = oracle_from {
-                let start = validation_pose(&world.scene, k, None)?;
-                let oracle = Oracle::plan(&world, OracleConfig::default());
-                let r = oracle.rollout(&world, start, 2000);
-                let pts: Vec<(f32, f32)> = r.trajectory.iter().map(|p| (p.x, p.y)).collect();
-                canvas.polyline(&pts, 2.0, [220, 40, 40]);
-                canvas.pose_arrow(start, 1.5, [220, 40, 40]);
-                println!(
-                    "oracle from point {k}: return {:.2}, {} steps, success {}",
-                    r.discounted_return, r.steps, r.success
-                );
-            }
-            if let Some(path) = trajectory {
-                let pts = read_xy_csv(&path)?;
-                canvas.polyline(&pts, 2.0, [250, 140, 0]);
-            }
-            save_png(&canvas.image, &out)?;
-            println!("wrote {} ({}×{})", out.display(), canvas.image.width(), canvas.image.height());
-        }
+        Command::Map { px_per_m, oracle_from, trajectory, out } => map(scene, px_per_m, oracle_from, trajectory, &out)?,
         Command::Record { policy, start, yaw_deg, steps, out } => {
-            let world = Arc::new(SimWorld::new(scene, SimConfig { traffic: cli.traffic, ..SimConfig::default() })?);
+            let world = Arc::new(SimWorld::new(scene, SimConfig { traffic: g.traffic, ..SimConfig::default() })?);
             let start = if start == "first" {
                 let mut p = world.scene.first_task();
                 if let Some(y) = yaw_deg {
@@ -252,56 +203,138 @@ fn main() -> Result<()> {
                     start.parse().with_context(|| format!("--start must be 0–13 or `first`, got `{start}`"))?;
                 validation_pose(&world.scene, k, yaw_deg)?
             };
-            record(world, cli.backend, cli.seed, policy, start, steps, &out)?;
+            record(world, g.backend, g.seed, policy, start, steps, &out)?;
         }
-        Command::Oracle { all_yaws } => {
-            let world = SimWorld::new(scene, SimConfig { t_max: 2000, ..SimConfig::default() })?;
-            let t0 = Instant::now();
-            let oracle = Oracle::plan(&world, OracleConfig::default());
-            println!("planned in {:.1} s ({} sweeps)", t0.elapsed().as_secs_f64(), oracle.sweeps());
-            println!(
-                "{:>5} {:>7} {:>7} {:>8} {:>10} {:>6} {:>7}",
-                "point", "x", "y", "yaw", "return", "steps", "success"
-            );
-            for p in world.scene.validation_points() {
-                let pose = Pose::from_degrees(p.x, p.y, p.favourable_yaw_deg);
-                let r = oracle.rollout(&world, pose, 2000);
-                println!(
-                    "{:>5} {:>7.1} {:>7.1} {:>8.0} {:>10.2} {:>6} {:>7}",
-                    p.id, p.x, p.y, p.favourable_yaw_deg, r.discounted_return, r.steps, r.success
-                );
-                if all_yaws {
-                    for yaw in [0.0f32, 45.0, -45.0, 90.0, -90.0, 135.0, -135.0, 180.0] {
-                        let r = oracle.rollout(&world, Pose::from_degrees(p.x, p.y, yaw), 2000);
-                        println!(
-                            "{:>5} {:>7} {:>7} {:>8.0} {:>10.2} {:>6} {:>7}",
-                            "", "", "", yaw, r.discounted_return, r.steps, r.success
-                        );
-                    }
-                }
+        Command::Oracle { all_yaws } => oracle_table(scene, all_yaws)?,
+        Command::Bench { envs, seconds, size } => {
+            let sim = SimConfig { image_size: size, traffic: g.traffic, ..SimConfig::default() };
+            bench(scene, sim, g.backend, &envs, seconds)?
+        }
+        Command::Traffic { hours } => traffic_table(scene, hours, g.seed)?,
+        Command::Info => info(scene, g.backend)?,
+    }
+    Ok(())
+}
+
+/// `view`: saves the observation at `shot` as PNG, its ×4 enlargement and (unless 0) a `people_size` render.
+fn view(scene: &Scene, g: Globals, shot: Shot, size: u32, people_size: u32, out: &std::path::Path) -> Result<()> {
+    let Shot { pose, head_deg, time } = shot;
+    let sim = SimConfig { image_size: size, traffic: g.traffic, ..SimConfig::default() };
+    let world = SimWorld::new(scene.clone(), sim.clone())?;
+    let cam = CameraView {
+        x: pose.x,
+        y: pose.y,
+        z: world.config.eye_height,
+        yaw: pose.yaw + head_deg.to_radians(),
+        look: Look::default(),
+    };
+    let traffic_view = |size: u32| -> Result<Vec<u8>> {
+        let world = Arc::new(SimWorld::new(scene.clone(), SimConfig { image_size: size, ..sim.clone() })?);
+        let mut env = VecEnv::new(world.clone(), 1, g.backend)?;
+        env.reset(0, pose, g.seed)?;
+        let head = (head_deg / world.config.max_head_yaw_deg).clamp(-1.0, 1.0);
+        for _ in 0..(time / world.config.dt).round() as u32 {
+            let t = env.step(&[[-1.0, 0.0, head]])?[0];
+            if t.terminated || t.truncated {
+                bail!("the episode ended before --time {time} s");
             }
         }
-        Command::Bench { envs, seconds, size } => {
-            let sim = SimConfig { image_size: size, traffic: cli.traffic, ..SimConfig::default() };
-            bench(scene, sim, cli.backend, &envs, seconds)?
-        }
-        Command::Traffic { hours } => traffic_table(scene, hours, cli.seed)?,
-        Command::Info => {
-            println!("scene: {} ({})", scene.spec.name, scene.origin);
-            println!("  {}", scene.spec.description);
+        if let Some(t) = env.traffic(0) {
             println!(
-                "  extent {:?}..{:?}, {} regions, {} obstacles (incl. 4 walls), goal centre {:?}",
-                scene.extent.min,
-                scene.extent.max,
-                scene.regions.len(),
-                scene.obstacles.len(),
-                scene.goal_center
+                "traffic: {} vehicles on the lanes, {} walkers, signal clock {:.2} s",
+                t.num_vehicles(),
+                t.walkers.len(),
+                t.t
             );
-            let world = SimWorld::new(scene, SimConfig::default())?;
-            let r = Renderer::new(&world.scene, &world.map, RendererConfig::from_sim(&world.config, 1, cli.backend))?;
-            println!("adapter: {}", r.adapter_description());
+        }
+        Ok(env.render()?.frame(0))
+    };
+    let traffic_on = g.traffic.is_on();
+    let frame = if traffic_on { traffic_view(size)? } else { render_one(&world, g.backend, size, cam)? };
+    save_gray_png(&frame, size, out)?;
+    let x4 = sibling(out, "x4");
+    save_png(&enlarge_gray(&frame, size, 4), &x4)?;
+    println!("wrote {} ({size}×{size}) and {}", out.display(), x4.display());
+    if people_size > 0 {
+        let big =
+            if traffic_on { traffic_view(people_size)? } else { render_one(&world, g.backend, people_size, cam)? };
+        let p = sibling(out, &people_size.to_string());
+        save_gray_png(&big, people_size, &p)?;
+        println!("wrote {} ({people_size}×{people_size})", p.display());
+    }
+    Ok(())
+}
+
+/// `map`: draws the bird's-eye map, with the oracle's path from a validation point and a CSV trajectory if asked.
+fn map(
+    scene: Scene,
+    px_per_m: f32,
+    oracle_from: Option<usize>,
+    trajectory: Option<PathBuf>,
+    out: &std::path::Path,
+) -> Result<()> {
+    let world = SimWorld::new(scene, SimConfig::default())?;
+    let mut canvas = draw_map(&world.scene, &world.map, px_per_m);
+    if let Some(k) = oracle_from {
+        let start = validation_pose(&world.scene, k, None)?;
+        let oracle = Oracle::plan(&world, OracleConfig::default());
+        let r = oracle.rollout(&world, start, 2000);
+        let pts: Vec<(f32, f32)> = r.trajectory.iter().map(|p| (p.x, p.y)).collect();
+        canvas.polyline(&pts, 2.0, [220, 40, 40]);
+        canvas.pose_arrow(start, 1.5, [220, 40, 40]);
+        println!("oracle from point {k}: return {:.2}, {} steps, success {}", r.discounted_return, r.steps, r.success);
+    }
+    if let Some(path) = trajectory {
+        let pts = read_xy_csv(&path)?;
+        canvas.polyline(&pts, 2.0, [250, 140, 0]);
+    }
+    save_png(&canvas.image, out)?;
+    println!("wrote {} ({}×{})", out.display(), canvas.image.width(), canvas.image.height());
+    Ok(())
+}
+
+/// `oracle`: plans the oracle and prints its return from each validation point (and each validation yaw if asked).
+fn oracle_table(scene: Scene, all_yaws: bool) -> Result<()> {
+    let world = SimWorld::new(scene, SimConfig { t_max: 2000, ..SimConfig::default() })?;
+    let t0 = Instant::now();
+    let oracle = Oracle::plan(&world, OracleConfig::default());
+    println!("planned in {:.1} s ({} sweeps)", t0.elapsed().as_secs_f64(), oracle.sweeps());
+    println!("{:>5} {:>7} {:>7} {:>8} {:>10} {:>6} {:>7}", "point", "x", "y", "yaw", "return", "steps", "success");
+    for p in world.scene.validation_points() {
+        let pose = Pose::from_degrees(p.x, p.y, p.favourable_yaw_deg);
+        let r = oracle.rollout(&world, pose, 2000);
+        println!(
+            "{:>5} {:>7.1} {:>7.1} {:>8.0} {:>10.2} {:>6} {:>7}",
+            p.id, p.x, p.y, p.favourable_yaw_deg, r.discounted_return, r.steps, r.success
+        );
+        if all_yaws {
+            for yaw in [0.0f32, 45.0, -45.0, 90.0, -90.0, 135.0, -135.0, 180.0] {
+                let r = oracle.rollout(&world, Pose::from_degrees(p.x, p.y, yaw), 2000);
+                println!(
+                    "{:>5} {:>7} {:>7} {:>8.0} {:>10.2} {:>6} {:>7}",
+                    "", "", "", yaw, r.discounted_return, r.steps, r.success
+                );
+            }
         }
     }
+    Ok(())
+}
+
+/// `info`: prints the scene summary and the graphics adapter that would be used.
+fn info(scene: Scene, backend: BackendChoice) -> Result<()> {
+    println!("scene: {} ({})", scene.spec.name, scene.origin);
+    println!("  {}", scene.spec.description);
+    println!(
+        "  extent {:?}..{:?}, {} regions, {} obstacles (incl. 4 walls), goal centre {:?}",
+        scene.extent.min,
+        scene.extent.max,
+        scene.regions.len(),
+        scene.obstacles.len(),
+        scene.goal_center
+    );
+    let world = SimWorld::new(scene, SimConfig::default())?;
+    let r = Renderer::new(&world.scene, &world.map, RendererConfig::from_sim(&world.config, 1, backend))?;
+    println!("adapter: {}", r.adapter_description());
     Ok(())
 }
 
