@@ -237,15 +237,20 @@ fn stepping_onto_a_zebra_outside_walk_is_paid_as_the_road_and_counted() {
     assert_eq!(t.reward, rewards.step_reward(pednav_sim::RegionKind::Zebra, 2.0, t.collided));
 }
 
-#[test]
-fn the_dont_walk_entry_reward_is_paid_once_on_the_step_onto_the_zebra() {
+/// Light traffic, state observations, −100 for entering a zebra outside WALK.
+fn light_world_paying_100_per_entry() -> Arc<SimWorld> {
     let cfg = SimConfig {
         traffic: TrafficLevel::Light,
         traffic_dont_walk_entry: Some(-100.0),
         obs_mode: ObsMode::State,
         ..SimConfig::default()
     };
-    let w = Arc::new(SimWorld::new(Scene::reference(), cfg).unwrap());
+    Arc::new(SimWorld::new(Scene::reference(), cfg).unwrap())
+}
+
+#[test]
+fn the_dont_walk_entry_reward_is_paid_once_on_the_step_onto_the_zebra() {
+    let w = light_world_paying_100_per_entry();
     assert_eq!(w.traffic.as_ref().unwrap().0.dont_walk_entry, 0.0, "the built-in scene's own reward is 0");
     let rewards = w.scene.rewards().clone();
     let road = |t: &pednav_sim::Transition| rewards.step_reward(pednav_sim::RegionKind::Road, 2.0, t.collided);
@@ -266,13 +271,7 @@ fn the_dont_walk_entry_reward_is_paid_once_on_the_step_onto_the_zebra() {
 
 #[test]
 fn a_set_entry_reward_applies_from_the_next_reset_and_is_range_checked() {
-    let cfg = SimConfig {
-        traffic: TrafficLevel::Light,
-        traffic_dont_walk_entry: Some(-100.0),
-        obs_mode: ObsMode::State,
-        ..SimConfig::default()
-    };
-    let w = Arc::new(SimWorld::new(Scene::reference(), cfg).unwrap());
+    let w = light_world_paying_100_per_entry();
     let rewards = w.scene.rewards().clone();
     let road = |t: &pednav_sim::Transition| rewards.step_reward(pednav_sim::RegionKind::Road, 2.0, t.collided);
     let mut env = VecEnv::new(w.clone(), 1, BackendChoice::Auto).unwrap();
