@@ -108,10 +108,11 @@ pub struct CurriculumConfig {
     /// (`sim.traffic_dont_walk_entry`, or the scene's). `[from, to]` in env steps: the
     /// training actors pay 0 of it before `from`, all of it from `to` on, and a linear
     /// share between, so that the crossing is learned before its timing is (an option
-    /// beyond the paper, which has no traffic). Env steps as the learner counts them — read off
-    /// the version of the weights an actor acts with (the learner's update count) at the
-    /// replay ratio, [`crate::DsacConfig::env_steps_at_update`] — so every actor follows the same ramp and a resumed run goes on with it; an
-    /// episode keeps the reward it started with. Evaluation always pays the full value.
+    /// beyond the paper, which has no traffic). Env steps as the learner counts them —
+    /// read off the version of the weights an actor acts with (the learner's update
+    /// count) at the replay ratio, [`crate::DsacConfig::env_steps_at_update`] — so every
+    /// actor follows the same ramp and a resumed run goes on with it; an episode keeps
+    /// the reward it started with. Evaluation always pays the full value.
     /// Absent (the default): the full value from the first step. Range: from ≤ to ≤ 1e9;
     /// needs `sim.traffic` on.
     #[serde(skip_serializing_if = "Option::is_none")]
@@ -259,7 +260,8 @@ impl CurriculumConfig {
         match self.entry_reward_ramp {
             None => 1.0,
             Some([from, _]) if env_steps < from => 0.0,
-            Some([from, to]) if env_steps >= to || to == from => 1.0,
+            // Here env_steps ≥ from, so from = to lands in this arm: no division by zero below.
+            Some([_, to]) if env_steps >= to => 1.0,
             Some([from, to]) => ((env_steps - from) as f64 / (to - from) as f64) as f32,
         }
     }
